@@ -1,0 +1,6 @@
+"""Task adapters to the gymnasium API and their registry: ``from envs import make, names``."""
+
+from envs import cartpole as _cartpole  # noqa: F401  (registers the cartpole tasks)
+from envs.registry import make, mj_model, names, register
+
+__all__ = ["make", "mj_model", "names", "register"]

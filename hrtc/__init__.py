@@ -1,0 +1,3 @@
+"""hrtc: Hierarchical Reinforcement Thompson Composition."""
+
+__version__ = "0.1.0"

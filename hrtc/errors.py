@@ -1,0 +1,37 @@
+"""Exceptions raised by hrtc. Every error a user can cause has its own type and a one-line message."""
+
+from __future__ import annotations
+
+
+class HRTCError(Exception):
+    """Base class for every error hrtc raises on purpose."""
+
+
+class ConfigError(HRTCError, ValueError):
+    """A configuration value is missing, malformed or out of range."""
+
+
+class UnknownNameError(HRTCError, KeyError):
+    """A task, skill, algorithm or state key that is not registered.
+
+    The message names what was asked for and every valid choice.
+    """
+
+    def __init__(self, kind: str, name: str, choices: list[str] | tuple[str, ...]) -> None:
+        self.kind, self.name, self.choices = kind, name, tuple(choices)
+        super().__init__(f"unknown {kind} {name!r}; valid {kind}s: {', '.join(sorted(self.choices))}")
+
+    def __str__(self) -> str:  # KeyError would quote the message
+        return self.args[0]
+
+
+class ShapeError(HRTCError, ValueError):
+    """An array does not have the shape a component declared."""
+
+
+class CheckpointError(HRTCError):
+    """A checkpoint file is missing, truncated, not a checkpoint, or unsafe to load."""
+
+
+class SkillError(HRTCError):
+    """A skill failed in a way that cannot be recovered (its construction, or repeated faults)."""

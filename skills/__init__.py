@@ -1,0 +1,1 @@
+"""Skill families. Every skill implements :class:`hrtc.skill.Skill`; one module per family."""
