@@ -33,7 +33,8 @@ class DMControlEnv(gym.Env[np.ndarray, np.ndarray]):
         named_state: maps the physics to the named quantities skills read (units in the task's docs).
         render_size: (height, width) of frames from :meth:`render`, pixels.
         camera_id: camera used by :meth:`render`.
-        environment_kwargs: passed to ``suite.load`` (e.g. ``time_limit`` in seconds).
+        time_limit: episode length in seconds (the task's default when None).
+        environment_kwargs: passed to ``suite.load``.
     """
 
     metadata = {"render_modes": ["rgb_array"]}
@@ -47,10 +48,14 @@ class DMControlEnv(gym.Env[np.ndarray, np.ndarray]):
         render_mode: str | None = None,
         render_size: tuple[int, int] = (240, 320),
         camera_id: int = 0,
+        time_limit: float | None = None,
         environment_kwargs: Mapping[str, Any] | None = None,
     ) -> None:
+        task_kwargs: dict[str, Any] = {"random": 0}
+        if time_limit is not None:
+            task_kwargs["time_limit"] = float(time_limit)
         self._env: control.Environment = suite.load(
-            domain, task, task_kwargs={"random": 0}, environment_kwargs=dict(environment_kwargs or {})
+            domain, task, task_kwargs=task_kwargs, environment_kwargs=dict(environment_kwargs or {})
         )
         self._named_state = named_state
         self.render_mode = render_mode

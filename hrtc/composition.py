@@ -1,0 +1,235 @@
+"""State filters, the action filter and the composed environment: HRTC's glue between skills and the meta-policy.
+
+The paper's action filter is a weighted sum, ``A = sum_k w_k * a_k`` with ``a_k = skill_k(state_filter_k(s))``, then
+clipped to the action bounds. :class:`ComposedEnv` wraps a task so that its *action is the weight vector*: the
+meta-policy is then PPO with a Beta head on that environment, and the skills compute inside the environment's own
+process (so they run in parallel across vector-environment workers).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any, Literal, Protocol
+
+import gymnasium as gym
+import numpy as np
+
+from hrtc.errors import ConfigError, ShapeError, UnknownNameError
+from hrtc.skill import Skill, SkillOutput
+
+log = logging.getLogger(__name__)
+
+BlendMode = Literal["sum", "convex"]
+BLEND_MODES: tuple[str, ...] = ("sum", "convex")
+
+
+# --------------------------------------------------------------------------------------------------- state filters
+class StateFilter(Protocol):
+    """Selects what one skill reads from the task's named state."""
+
+    def __call__(self, state: Mapping[str, np.ndarray]) -> np.ndarray: ...
+
+
+@dataclass(frozen=True)
+class KeysFilter:
+    """Concatenates the named quantities ``keys``, in order, into one float64 vector."""
+
+    keys: tuple[str, ...]
+
+    def __call__(self, state: Mapping[str, np.ndarray]) -> np.ndarray:
+        if not self.keys:
+            return np.zeros(0)
+        try:
+            return np.concatenate([np.atleast_1d(np.asarray(state[k], dtype=np.float64)).ravel() for k in self.keys])
+        except KeyError as error:
+            raise UnknownNameError("state key", str(error.args[0]), tuple(state)) from None
+
+
+# --------------------------------------------------------------------------------------------------- action filter
+def blend(weights: np.ndarray, proposals: np.ndarray, mode: BlendMode = "sum") -> np.ndarray:
+    """Combine skill proposals. ``weights`` (K,), ``proposals`` (K, A) -> (A,).
+
+    ``sum``: the paper's ``sum_k w_k a_k``. ``convex``: ``sum_k w_k a_k / sum_k w_k`` (zero when every weight is 0).
+    Weights are clipped to [0, 1] first (Normal-weight meta-policies can sample outside it).
+    """
+    weights = np.clip(weights, 0.0, 1.0)
+    combined = weights @ proposals
+    if mode == "convex":
+        total = weights.sum()
+        combined = combined / total if total > 1e-8 else np.zeros_like(combined)
+    return combined
+
+
+@dataclass(frozen=True)
+class ActionFilter:
+    """``blend`` then clip to ``[low, high]``."""
+
+    low: np.ndarray
+    high: np.ndarray
+    mode: BlendMode = "sum"
+
+    def __post_init__(self) -> None:
+        if self.mode not in BLEND_MODES:
+            raise UnknownNameError("action filter mode", self.mode, BLEND_MODES)
+
+    def __call__(self, weights: np.ndarray, proposals: np.ndarray) -> np.ndarray:
+        return np.clip(blend(weights, proposals, self.mode), self.low, self.high)
+
+
+# --------------------------------------------------------------------------------------------------- skill library
+@dataclass
+class SkillSlot:
+    """One skill in a library: its name (config name = Rerun entity = registry key), state filter and rate.
+
+    ``every``: the skill is asked for a new action every ``every`` env steps and its action is held in between.
+    """
+
+    name: str
+    skill: Skill
+    state_filter: StateFilter
+    every: int = 1
+    _held: np.ndarray | None = field(default=None, repr=False)
+    _info: Mapping[str, float] = field(default_factory=dict, repr=False)
+    faults: int = 0
+
+    def reset(self, rng: np.random.Generator) -> None:
+        self.skill.reset(rng)
+        self._held, self._info, self.faults = None, {}, 0
+
+    def propose(self, state: Mapping[str, np.ndarray], step: int, action_dim: int) -> SkillOutput:
+        if self._held is not None and step % self.every != 0:
+            return SkillOutput(self._held, self._info)
+        start = time.perf_counter()
+        out = self.skill.act(self.state_filter(state))
+        action = np.asarray(out.action, dtype=np.float64)
+        if action.shape != (action_dim,):
+            raise ShapeError(f"skill {self.name!r} proposed an action of shape {action.shape}; the task's is {(action_dim,)}")
+        info = dict(out.info)
+        info.setdefault("compute_ms", (time.perf_counter() - start) * 1e3)
+        if not np.all(np.isfinite(action)):
+            # A solver returned NaN/inf: fall back to the last good action (or zero) and count the fault.
+            self.faults += 1
+            log.warning("skill %r proposed a non-finite action; holding its last good action", self.name)
+            action = self._held if self._held is not None else np.zeros(action_dim)
+            info["fault"] = 1.0
+        self._held, self._info = action, info
+        return SkillOutput(action, info)
+
+
+class SkillLibrary:
+    """The task's skills, in a fixed order (the order of the weight vector)."""
+
+    def __init__(self, slots: Sequence[SkillSlot]) -> None:
+        if not slots:
+            raise ConfigError("a skill library needs at least one skill")
+        names = [s.name for s in slots]
+        if len(set(names)) != len(names):
+            raise ConfigError(f"skill names must be unique, got {names}")
+        self.slots = list(slots)
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(s.name for s in self.slots)
+
+    def __len__(self) -> int:
+        return len(self.slots)
+
+    def reset(self, rng: np.random.Generator) -> None:
+        for slot, child in zip(self.slots, rng.spawn(len(self.slots)), strict=True):
+            slot.reset(child)
+
+    def propose(self, state: Mapping[str, np.ndarray], step: int, action_dim: int) -> tuple[np.ndarray, list]:
+        """Every skill's proposal for ``state``: (K, action_dim) actions and K diagnostics dicts."""
+        outs = [slot.propose(state, step, action_dim) for slot in self.slots]
+        return np.stack([o.action for o in outs]), [o.info for o in outs]
+
+
+def build_library(skills_cfg: Mapping[str, Mapping[str, Any]]) -> SkillLibrary:
+    """Build a library from a task config's ``skills`` mapping::
+
+        name: {skill: {_target_: module.Class, ...kwargs}, state: [keys...] (optional), every: 1 (optional)}
+    """
+    from hydra.utils import instantiate
+
+    slots = []
+    for name, spec in skills_cfg.items():
+        spec = dict(spec)
+        unknown = set(spec) - {"skill", "state", "every"}
+        if unknown or "skill" not in spec:
+            raise ConfigError(
+                f"skill {name!r}: expected keys skill (required), state, every; got {sorted(spec)}"
+            )
+        try:
+            skill = instantiate(spec["skill"], _convert_="all")
+        except Exception as error:  # hydra wraps import and constructor errors: report them on one line
+            cause = error.__cause__ or error
+            raise ConfigError(f"skill {name!r} could not be built: {cause}") from error
+        every = int(spec.get("every", 1))
+        if every < 1:
+            raise ConfigError(f"skill {name!r}: every must be >= 1, got {every}")
+        keys = tuple(spec["state"]) if spec.get("state") is not None else tuple(skill.state_keys)
+        slots.append(SkillSlot(name, skill, KeysFilter(keys), every))
+    return SkillLibrary(slots)
+
+
+# --------------------------------------------------------------------------------------------------- composed env
+class ComposedEnv(gym.Wrapper):
+    """A task whose action is the skill-weight vector ``w`` in [0, 1]^K.
+
+    Each step: every skill proposes for the current state, the action filter blends the proposals with ``w``, the
+    task steps with the blended action. ``info`` carries ``weights`` (K,), ``proposals`` (K, A), ``action`` (A,),
+    ``skill_faults`` (K,) and per-skill diagnostics under ``skills``.
+    """
+
+    def __init__(self, env: gym.Env, library: SkillLibrary, mode: BlendMode = "sum") -> None:
+        super().__init__(env)
+        space = env.action_space
+        if not isinstance(space, gym.spaces.Box) or len(space.shape) != 1:
+            raise ConfigError(f"HRTC composes 1-D Box actions; this task's action space is {space}")
+        if not hasattr(env.unwrapped, "skill_state"):
+            raise ConfigError(f"task {env.unwrapped} exposes no skill_state(): skills cannot read it")
+        self.library = library
+        self.action_filter = ActionFilter(space.low.astype(np.float64), space.high.astype(np.float64), mode)
+        self.action_dim = int(space.shape[0])
+        self.action_space = gym.spaces.Box(0.0, 1.0, (len(library),), np.float32)
+        self._step = 0
+        self._proposals = np.zeros((len(library), self.action_dim))
+        self._skill_info: list = []
+
+    @property
+    def skill_names(self) -> tuple[str, ...]:
+        return self.library.names
+
+    def _propose(self) -> None:
+        self._proposals, self._skill_info = self.library.propose(
+            self.env.unwrapped.skill_state(), self._step, self.action_dim
+        )
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        obs, info = self.env.reset(seed=seed, options=options)
+        self.library.reset(np.random.default_rng(seed) if seed is not None else self.env.np_random)
+        self._step = 0
+        self._propose()
+        return obs, info
+
+    def step(self, weights: np.ndarray):
+        weights = np.asarray(weights, dtype=np.float64).reshape(-1)
+        if weights.shape != (len(self.library),):
+            raise ShapeError(f"expected {len(self.library)} skill weights {self.library.names}, got {weights.shape}")
+        proposals = self._proposals
+        action = self.action_filter(weights, proposals)
+        obs, reward, terminated, truncated, info = self.env.step(action.astype(np.float32))
+        info.update(
+            weights=np.clip(weights, 0.0, 1.0),
+            proposals=proposals,
+            action=action,
+            skill_faults=np.array([s.faults for s in self.library.slots], dtype=np.float64),
+            skills=dict(zip(self.library.names, self._skill_info, strict=True)),
+        )
+        self._step += 1
+        if not (terminated or truncated):
+            self._propose()
+        return obs, reward, terminated, truncated, info

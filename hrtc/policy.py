@@ -1,0 +1,64 @@
+"""The meta-policy (actor) and the master critic V(s).
+
+The same class serves HRTC (the actor's distribution is over the K skill weights) and plain PPO (over the raw
+action); only ``out_dim`` and the consumer of the sample differ, so both are compared with identical networks.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import torch
+from torch import nn
+
+from hrtc.distributions import BetaDistribution, NormalDistribution, make_head
+
+
+def mlp(in_dim: int, hidden: Sequence[int], activation: type[nn.Module] = nn.Tanh) -> nn.Sequential:
+    """Orthogonally initialised MLP (gain sqrt 2), as in CleanRL's continuous PPO."""
+    layers: list[nn.Module] = []
+    for width in hidden:
+        linear = nn.Linear(in_dim, width)
+        nn.init.orthogonal_(linear.weight, gain=2**0.5)
+        nn.init.zeros_(linear.bias)
+        layers += [linear, activation()]
+        in_dim = width
+    return nn.Sequential(*layers)
+
+
+class ActorCritic(nn.Module):
+    """Separate actor and critic MLPs on the (normalised) observation.
+
+    Args:
+        obs_dim: observation size.
+        out_dim: size of the distribution's sample (K skills for HRTC, the action size for PPO).
+        dist: ``"beta"`` or ``"normal"``.
+        hidden: hidden widths, shared by actor and critic.
+        normal_init_mean, normal_init_log_std: the Normal head's starting point (in the sample's units).
+    """
+
+    def __init__(
+        self,
+        obs_dim: int,
+        out_dim: int,
+        dist: str = "beta",
+        hidden: Sequence[int] = (64, 64),
+        normal_init_mean: float = 0.0,
+        normal_init_log_std: float = 0.0,
+    ) -> None:
+        super().__init__()
+        self.obs_dim, self.out_dim, self.dist_kind = obs_dim, out_dim, dist
+        self.actor_body = mlp(obs_dim, hidden)
+        kwargs = {"init_mean": normal_init_mean, "init_log_std": normal_init_log_std} if dist == "normal" else {}
+        self.actor_head = make_head(dist, hidden[-1] if hidden else obs_dim, out_dim, **kwargs)
+        self.critic = nn.Sequential(mlp(obs_dim, hidden), nn.Linear(hidden[-1] if hidden else obs_dim, 1))
+        nn.init.orthogonal_(self.critic[-1].weight, gain=1.0)
+        nn.init.zeros_(self.critic[-1].bias)
+
+    def distribution(self, obs: torch.Tensor) -> BetaDistribution | NormalDistribution:
+        """The meta-policy's distribution for ``obs`` (batch, obs_dim)."""
+        return self.actor_head(self.actor_body(obs))
+
+    def value(self, obs: torch.Tensor) -> torch.Tensor:
+        """V(s), (batch,)."""
+        return self.critic(obs).squeeze(-1)

@@ -1,0 +1,327 @@
+"""A nonlinear MPC skill for the cart-pole: keep the cart near a position reference.
+
+:class:`CartTrackingMPC` solves, at every call, a finite-horizon optimal control problem on the nonlinear rigid-body
+model of :mod:`skills.cartpole_model` (RK4 at the MPC's own step ``dt``, direct multiple shooting) with CasADi's SQP
+method and the ``qrqp`` QP solver, warm-started from the previous solution shifted by one step.
+
+It is a *partial* skill: the cost penalises the cart's distance to ``x_ref``, its velocity and the control, never the
+pole. The pole is predicted (so the cart is held still against a swinging pole) but neither swung up nor balanced.
+
+The skill is meant to be re-solved every ``dt`` seconds (every 5 env steps of 0.01 s for the default 0.05 s) with its
+action held in between: the warm start shifts the plan by exactly one MPC step per call.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import casadi
+import numpy as np
+
+from hrtc.errors import ConfigError, ShapeError
+from hrtc.skill import SkillOutput
+from skills.cartpole_model import CartpoleParams, accelerations
+
+# info["status"] values: 0 is a converged solve; anything else means the action is a fallback.
+STATUS_OK = 0
+STATUS_NOT_CONVERGED = 1  # the solver stopped without success (iteration limit, infeasible, ...)
+STATUS_NONFINITE_SOLUTION = 2  # the solver raised or returned NaN / inf
+STATUS_NONFINITE_STATE = 3  # the input state had NaN / inf; no solve was attempted
+
+_NX, _NU = 4, 1  # state (x, theta, x_dot, theta_dot), control u
+
+
+def cartpole_rk4(params: CartpoleParams, dt: float, substeps: int = 1) -> casadi.Function:
+    """One ZOH step of the cart-pole: ``F(s, u) -> s_next`` as a CasADi function.
+
+    s: (4,) ``[x (m), theta (rad, 0 upright), x_dot (m/s), theta_dot (rad/s)]``; u: (1,) unitless, held for ``dt``
+    seconds and integrated with ``substeps`` classical RK4 steps.
+    """
+    s = casadi.MX.sym("s", _NX)
+    u = casadi.MX.sym("u", _NU)
+
+    def f(z: Any) -> Any:
+        x_ddot, theta_ddot = accelerations(params, z[1], z[3], z[2], u, math=casadi)
+        return casadi.vertcat(z[2], z[3], x_ddot, theta_ddot)
+
+    h = dt / substeps
+    z = s
+    for _ in range(substeps):
+        k1 = f(z)
+        k2 = f(z + 0.5 * h * k1)
+        k3 = f(z + 0.5 * h * k2)
+        k4 = f(z + h * k3)
+        z = z + h / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+    return casadi.Function("cartpole_rk4", [s, u], [z], ["s", "u"], ["s_next"])
+
+
+class CartTrackingMPC:
+    """Nonlinear MPC that drives the cart to ``x_ref`` and holds it there, ignoring the pole's angle.
+
+    Problem over the horizon ``k = 0..N-1`` (``N = horizon``), model step ``dt`` s:
+        min  sum_k  w_position (x_k - x_ref)^2 + w_velocity x_dot_k^2 + w_control u_k^2
+             + w_terminal_position (x_N - x_ref)^2 + w_terminal_velocity x_dot_N^2
+        s.t. s_0 = state, s_{k+1} = RK4(s_k, u_k), u_k in ctrlrange, |x_k| <= rail - rail_margin (k >= 1).
+
+    Args:
+        model: task name for :func:`envs.mj_model`, whose MuJoCo model gives the physical parameters and limits.
+        x_ref: cart position reference, m; change it later with :meth:`set_reference`.
+        dt: MPC step, s; the returned action is meant to be held this long.
+        horizon: number of MPC steps ``N``.
+        w_position, w_velocity, w_control: stage weights on ``(x - x_ref)^2`` (1/m^2), ``x_dot^2`` (s^2/m^2), ``u^2``.
+        w_terminal_position, w_terminal_velocity: terminal weights on ``(x_N - x_ref)^2`` and ``x_dot_N^2``.
+        rail_margin: the predicted cart stays this far inside the slider's range, m.
+        max_iter: SQP iteration limit per solve.
+        substeps: RK4 substeps per MPC step.
+    """
+
+    state_keys: tuple[str, ...] = ("cart_position", "pole_angle", "cart_velocity", "pole_angular_velocity")
+
+    def __init__(
+        self,
+        model: str = "cartpole_swingup",
+        x_ref: float = 0.0,
+        dt: float = 0.05,
+        horizon: int = 20,
+        w_position: float = 10.0,
+        w_velocity: float = 1.0,
+        w_control: float = 0.1,
+        w_terminal_position: float = 50.0,
+        w_terminal_velocity: float = 10.0,
+        rail_margin: float = 0.1,
+        max_iter: int = 15,
+        substeps: int = 1,
+    ) -> None:
+        if not (np.isfinite(dt) and dt > 0.0):
+            raise ConfigError(f"dt must be a positive number of seconds, got {dt!r}")
+        if isinstance(horizon, bool) or not isinstance(horizon, int | np.integer) or horizon < 1:
+            raise ConfigError(f"horizon must be an integer >= 1, got {horizon!r}")
+        if isinstance(max_iter, bool) or not isinstance(max_iter, int | np.integer) or max_iter < 1:
+            raise ConfigError(f"max_iter must be an integer >= 1, got {max_iter!r}")
+        if isinstance(substeps, bool) or not isinstance(substeps, int | np.integer) or substeps < 1:
+            raise ConfigError(f"substeps must be an integer >= 1, got {substeps!r}")
+        weights = {
+            "w_position": w_position,
+            "w_velocity": w_velocity,
+            "w_control": w_control,
+            "w_terminal_position": w_terminal_position,
+            "w_terminal_velocity": w_terminal_velocity,
+        }
+        for name, value in weights.items():
+            if not (np.isfinite(value) and value >= 0.0):
+                raise ConfigError(f"{name} must be a finite number >= 0, got {value!r}")
+        if w_control <= 0.0:
+            raise ConfigError(f"w_control must be > 0 so the problem is strictly convex in u, got {w_control!r}")
+        if w_position + w_terminal_position <= 0.0:
+            raise ConfigError("w_position and w_terminal_position are both 0: nothing tracks the reference")
+        if not (np.isfinite(rail_margin) and rail_margin >= 0.0):
+            raise ConfigError(f"rail_margin must be a finite number >= 0 m, got {rail_margin!r}")
+
+        mj_model = _load_mj_model(model)
+        self.params = CartpoleParams.from_mj_model(mj_model)
+        slider_range = _slider_range(mj_model)
+        self.position_min = float(slider_range[0] + rail_margin)  # m
+        self.position_max = float(slider_range[1] - rail_margin)  # m
+        if self.position_min >= self.position_max:
+            raise ConfigError(f"rail_margin {rail_margin} m leaves no room on the rail {tuple(slider_range)}")
+        self.model = model
+        self.dt = float(dt)
+        self.horizon = int(horizon)
+        self.max_iter = int(max_iter)
+        self.weights = {k: float(v) for k, v in weights.items()}
+        self.x_ref = 0.0
+        self.set_reference(x_ref)
+
+        self.step = cartpole_rk4(self.params, self.dt, int(substeps))
+        self._build_solver()
+        self._warm: dict[str, np.ndarray] | None = None
+        self._plan: np.ndarray | None = None  # (N,) controls of the last successful solve
+        self._plan_index = 0  # index into _plan of the control to fall back on next
+
+    # ------------------------------------------------------------------ problem
+    def _build_solver(self) -> None:
+        n, p, w = self.horizon, self.params, self.weights
+        s0 = casadi.MX.sym("s0", _NX)
+        x_ref = casadi.MX.sym("x_ref")
+        states = casadi.MX.sym("S", _NX, n + 1)  # columns s_0..s_N
+        controls = casadi.MX.sym("U", _NU, n)  # columns u_0..u_{N-1}
+        propagated = self.step.map(n)(states[:, :n], controls)  # (4, N)
+
+        err = states[0, :] - x_ref  # (1, N+1)
+        cost = (
+            w["w_position"] * casadi.sumsqr(err[:n])
+            + w["w_velocity"] * casadi.sumsqr(states[2, :n])
+            + w["w_control"] * casadi.sumsqr(controls)
+            + w["w_terminal_position"] * err[n] ** 2
+            + w["w_terminal_velocity"] * states[2, n] ** 2
+        )
+        gaps = casadi.vertcat(states[:, 0] - s0, casadi.vec(states[:, 1:] - propagated))  # (4 (N+1),)
+        decision = casadi.vertcat(casadi.vec(states), casadi.vec(controls))
+        self._n_states = _NX * (n + 1)
+        self._n_decision = self._n_states + _NU * n
+
+        lbx = np.full(self._n_decision, -np.inf)
+        ubx = np.full(self._n_decision, np.inf)
+        # the initial state is pinned by the equality constraint; bounding it too would make an out-of-range
+        # measurement infeasible instead of something the plan recovers from
+        lbx[_NX : self._n_states : _NX] = self.position_min
+        ubx[_NX : self._n_states : _NX] = self.position_max
+        lbx[self._n_states :] = p.control_min
+        ubx[self._n_states :] = p.control_max
+        self._lbx, self._ubx = lbx, ubx
+        self._n_constraints = int(gaps.numel())
+
+        options = {
+            "qpsol": "qrqp",
+            "convexify_strategy": "eigen-clip",
+            "max_iter": self.max_iter,
+            "expand": True,  # SX evaluation of the MX graph: several times faster for this small problem
+            "print_time": False,
+            "print_header": False,
+            "print_iteration": False,
+            "print_status": False,
+            "error_on_fail": False,
+            "qpsol_options": {"print_iter": False, "print_header": False, "print_info": False, "error_on_fail": False},
+        }
+        nlp = {"x": decision, "p": casadi.vertcat(s0, x_ref), "f": cost, "g": gaps}
+        self._solver = casadi.nlpsol("cart_tracking_mpc", "sqpmethod", nlp, options)
+
+    @property
+    def plan(self) -> np.ndarray | None:
+        """Controls of the last converged solve, (N,), one per ``dt``; None before the first one or after a reset."""
+        return None if self._plan is None else self._plan.copy()
+
+    # ------------------------------------------------------------------ skill protocol
+    def set_reference(self, x_ref: float) -> None:
+        """Track cart position ``x_ref`` (m) from the next call of :meth:`act` on; must lie inside the bounds."""
+        x_ref = float(x_ref)
+        if not (np.isfinite(x_ref) and self.position_min <= x_ref <= self.position_max):
+            raise ConfigError(
+                f"x_ref must be a finite position in [{self.position_min}, {self.position_max}] m, got {x_ref!r}"
+            )
+        self.x_ref = x_ref
+
+    def reset(self, rng: np.random.Generator) -> None:
+        """Forget the warm start and the fallback plan. ``rng`` is unused: the skill is deterministic."""
+        del rng
+        self._warm = None
+        self._plan = None
+        self._plan_index = 0
+
+    def act(self, state: np.ndarray) -> SkillOutput:
+        """Solve the MPC problem from ``state`` and propose its first control.
+
+        state: (4,) ``[cart_position (m), pole_angle (rad), cart_velocity (m/s), pole_angular_velocity (rad/s)]``.
+        Returns a (1,) action in the model's ctrlrange, always finite. ``info``: ``solve_ms`` (wall time of the solve,
+        ms), ``status`` (0 converged; otherwise the action is a fallback, see the ``STATUS_*`` constants),
+        ``iterations`` (SQP iterations), ``cost`` (optimal cost; NaN when no solution was usable).
+        """
+        state = np.asarray(state, dtype=np.float64)
+        if state.shape != (_NX,):
+            raise ShapeError(
+                f"CartTrackingMPC expects a state of shape ({_NX},) ordered as {self.state_keys}, got {state.shape}"
+            )
+        if not np.all(np.isfinite(state)):
+            return self._fallback(state, STATUS_NONFINITE_STATE, solve_ms=0.0, iterations=0)
+
+        x0, lam_x0, lam_g0 = self._initial_guess(state)
+        start = time.perf_counter()
+        try:
+            result = self._solver(
+                x0=x0,
+                p=np.append(state, self.x_ref),
+                lbx=self._lbx,
+                ubx=self._ubx,
+                lbg=0.0,
+                ubg=0.0,
+                lam_x0=lam_x0,
+                lam_g0=lam_g0,
+            )
+        except RuntimeError:  # CasADi raises when a function evaluation fails (e.g. NaN in a derivative)
+            solve_ms = 1e3 * (time.perf_counter() - start)
+            self._warm = None
+            return self._fallback(state, STATUS_NONFINITE_SOLUTION, solve_ms=solve_ms, iterations=0)
+        solve_ms = 1e3 * (time.perf_counter() - start)
+        stats = self._solver.stats()
+        iterations = int(stats.get("iter_count", 0))
+
+        w = np.asarray(result["x"]).ravel()
+        lam_x = np.asarray(result["lam_x"]).ravel()
+        lam_g = np.asarray(result["lam_g"]).ravel()
+        cost = float(result["f"])
+        if not (np.all(np.isfinite(w)) and np.all(np.isfinite(lam_x)) and np.all(np.isfinite(lam_g))):
+            self._warm = None
+            return self._fallback(state, STATUS_NONFINITE_SOLUTION, solve_ms=solve_ms, iterations=iterations)
+        if not stats.get("success", False):
+            # an unconverged iterate is still a reasonable warm start for the next call
+            self._warm = {"x": w, "lam_x": lam_x, "lam_g": lam_g}
+            return self._fallback(state, STATUS_NOT_CONVERGED, solve_ms=solve_ms, iterations=iterations)
+
+        self._warm = {"x": w, "lam_x": lam_x, "lam_g": lam_g}
+        controls = np.clip(w[self._n_states :], self.params.control_min, self.params.control_max)  # (N,)
+        self._plan, self._plan_index = controls, 1
+        info = {"solve_ms": solve_ms, "status": float(STATUS_OK), "iterations": float(iterations), "cost": cost}
+        return SkillOutput(controls[:1].copy(), info)
+
+    # ------------------------------------------------------------------ internals
+    def _initial_guess(self, state: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Primal guess and multipliers: the previous solution shifted by one step, or a cold start."""
+        n = self.horizon
+        if self._warm is None:
+            states = np.tile(state, (n + 1, 1))  # (N+1, 4): hold the current state
+            # a tiny push towards the reference: from an exact equilibrium with a zero guess, the SQP's first step
+            # can sit at a zero gradient
+            controls = np.full(n, 1e-3 * np.sign(self.x_ref - state[0] or 1.0))
+            x0 = np.concatenate([states.ravel(), controls])
+            return x0, np.zeros(self._n_decision), np.zeros(self._n_constraints)
+
+        w, lam_x, lam_g = self._warm["x"], self._warm["lam_x"], self._warm["lam_g"]
+        x0 = np.concatenate([_shift(w[: self._n_states], _NX), _shift(w[self._n_states :], _NU)])
+        # pole_angle is wrapped to (-pi, pi]: move the guessed angles by whole turns to agree with the measurement,
+        # or a hanging pole crossing +-pi would open a 2 pi gap in the shooting constraints
+        turns = np.round((state[1] - x0[1]) / (2.0 * np.pi))
+        x0[1 : self._n_states : _NX] += 2.0 * np.pi * turns
+        x0[:_NX] = state  # the pinned initial state is known exactly
+        lam_x0 = np.concatenate([_shift(lam_x[: self._n_states], _NX), _shift(lam_x[self._n_states :], _NU)])
+        lam_g0 = _shift(lam_g, _NX)
+        return x0, lam_x0, lam_g0
+
+    def _fallback(self, state: np.ndarray, status: int, *, solve_ms: float, iterations: int) -> SkillOutput:
+        """A safe action when no fresh solution is usable: the previous plan's next control, else a PD on the cart."""
+        p = self.params
+        if self._plan is not None and self._plan_index < len(self._plan):
+            u = float(self._plan[self._plan_index])
+            self._plan_index += 1
+        elif np.isfinite(state[0]) and np.isfinite(state[2]):
+            # critically damped PD on the cart's mass alone (2 rad/s), converted from force to u
+            u = (4.0 * (self.x_ref - state[0]) - 4.0 * state[2]) * (p.cart_mass + p.pole_mass) / p.gear
+        else:
+            u = 0.0
+        action = np.array([float(np.clip(u, p.control_min, p.control_max))])
+        info = {"solve_ms": solve_ms, "status": float(status), "iterations": float(iterations), "cost": float("nan")}
+        return SkillOutput(action, info)
+
+
+def _shift(block: np.ndarray, width: int) -> np.ndarray:
+    """Drop the first ``width`` entries of a stacked trajectory and repeat its last ``width`` entries at the end."""
+    return np.concatenate([block[width:], block[-width:]])
+
+
+def _load_mj_model(model: str) -> Any:
+    import envs  # imported here: envs pulls in dm_control, needed only to read the parameters
+
+    try:
+        return envs.mj_model(model)
+    except KeyError as error:
+        raise ConfigError(f"model must be a cart-pole task name: {error}") from None
+
+
+def _slider_range(mj_model: Any) -> np.ndarray:
+    """The slider joint's (lower, upper) position limits, m; ValueError if it is not limited."""
+    import mujoco
+
+    slider = mujoco.mj_name2id(mj_model, mujoco.mjtObj.mjOBJ_JOINT, "slider")
+    if slider < 0 or not mj_model.jnt_limited[slider]:
+        raise ConfigError("the model's slider joint is missing or has no range: cannot bound the cart position")
+    return np.asarray(mj_model.jnt_range[slider], dtype=np.float64)
