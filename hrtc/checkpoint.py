@@ -44,7 +44,9 @@ def load_checkpoint(path: str | Path) -> dict[str, Any]:
         state = torch.load(path, map_location="cpu", weights_only=True)
     except pickle.UnpicklingError as error:
         first = str(error).strip().splitlines()[0] if str(error).strip() else "unpickling refused"
-        raise CheckpointError(f"{path} was refused by the safe loader (not plain tensors and containers): {first}") from None
+        raise CheckpointError(
+            f"{path} was refused by the safe loader (not plain tensors and containers): {first}"
+        ) from None
     except (RuntimeError, EOFError, zipfile.BadZipFile, OSError, ValueError) as error:
         raise CheckpointError(f"{path} is not a readable checkpoint (truncated or corrupt?): {error}") from None
     if not isinstance(state, dict) or state.get("format") != FORMAT:

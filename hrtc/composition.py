@@ -106,7 +106,9 @@ class SkillSlot:
         out = self.skill.act(self.state_filter(state))
         action = np.asarray(out.action, dtype=np.float64)
         if action.shape != (action_dim,):
-            raise ShapeError(f"skill {self.name!r} proposed an action of shape {action.shape}; the task's is {(action_dim,)}")
+            raise ShapeError(
+                f"skill {self.name!r} proposed an action of shape {action.shape}; the task's is {(action_dim,)}"
+            )
         info = dict(out.info)
         info.setdefault("compute_ms", (time.perf_counter() - start) * 1e3)
         if not np.all(np.isfinite(action)):
@@ -150,7 +152,7 @@ class SkillLibrary:
 def build_library(skills_cfg: Mapping[str, Mapping[str, Any]]) -> SkillLibrary:
     """Build a library from a task config's ``skills`` mapping::
 
-        name: {skill: {_target_: module.Class, ...kwargs}, state: [keys...] (optional), every: 1 (optional)}
+    name: {skill: {_target_: module.Class, ...kwargs}, state: [keys...] (optional), every: 1 (optional)}
     """
     from hydra.utils import instantiate
 
@@ -159,9 +161,7 @@ def build_library(skills_cfg: Mapping[str, Mapping[str, Any]]) -> SkillLibrary:
         spec = dict(spec)
         unknown = set(spec) - {"skill", "state", "every"}
         if unknown or "skill" not in spec:
-            raise ConfigError(
-                f"skill {name!r}: expected keys skill (required), state, every; got {sorted(spec)}"
-            )
+            raise ConfigError(f"skill {name!r}: expected keys skill (required), state, every; got {sorted(spec)}")
         try:
             skill = instantiate(spec["skill"], _convert_="all")
         except Exception as error:  # hydra wraps import and constructor errors: report them on one line

@@ -22,12 +22,14 @@ import osqp
 import scipy.linalg
 import scipy.sparse as sp
 
-from hrtc.errors import ShapeError
+from hrtc.errors import ConfigError, ShapeError
 from hrtc.skill import SkillOutput
 
+# ``info["status"]`` codes, shared with the other skills (skills.nmpc).
 STATUS_OK = 0  # the QP was solved; the action is its first control
-STATUS_SOLVER_FAILED = 1  # OSQP did not solve the QP (or returned non-finite values); the action is the clipped LQR
-STATUS_BAD_STATE = 2  # the state was not finite; the action is the clipped reference control
+STATUS_NOT_CONVERGED = 1  # OSQP stopped without solving (iteration limit, ...); the action is the clipped LQR law
+STATUS_NONFINITE_SOLUTION = 2  # OSQP returned NaN / inf; the action is the clipped LQR law
+STATUS_NONFINITE_STATE = 3  # the state had NaN / inf; the action is the clipped reference control
 
 
 class Linearization(NamedTuple):
@@ -130,9 +132,9 @@ def _vector(name: str, value: Any, size: int) -> np.ndarray:
     if array.ndim == 0:
         array = np.full(size, float(array))
     if array.shape != (size,):
-        raise ValueError(f"{name} must be a scalar or have shape ({size},), got shape {array.shape}")
+        raise ConfigError(f"{name} must be a scalar or have shape ({size},), got shape {array.shape}")
     if not np.all(np.isfinite(array)):
-        raise ValueError(f"{name} must be finite, got {array}")
+        raise ConfigError(f"{name} must be finite, got {array}")
     return array
 
 
@@ -150,14 +152,14 @@ class LinearMPC:
         qvel_ref: (nv,) reference velocities, default zeros.
         ctrl_ref: (nu,) reference control, default zeros.
         horizon: N, steps of the prediction horizon.
-        q_diag: (2 nv,) diagonal of Q on ``[dq, dv]`` (units^-2 of each); default: the cart-pole's tuning
-            ``(1, 10, 0.1, 0.1)`` if the model has two dofs, otherwise ones.
+        q_diag: (2 nv,) diagonal of Q on ``[dq, dv]`` (per unit^2 of each); default ones, which balances the
+            cart-pole from 0.15 rad with velocities.
         r: diagonal of R, a scalar or (nu,), per control unit^2; > 0.
         eps: finite-difference step for the linearisation.
         max_iter, eps_abs, eps_rel: OSQP settings.
 
-    Info keys: ``solve_ms`` (wall time of the QP update and solve, ms), ``status`` (0 ok, 1 solver failed and the
-    clipped LQR action was used, 2 non-finite state), ``osqp_status`` (OSQP's status code, 1 = solved),
+    Info keys: ``solve_ms`` (wall time of the QP update and solve, ms), ``status`` (0 ok; 1 or 2 the solve failed
+    and the clipped LQR action was used; 3 non-finite state), ``osqp_status`` (OSQP's status code, 1 = solved),
     ``iterations``, ``cost`` (predicted cost-to-go of the plan; of the LQR law on a fallback).
     """
 
@@ -182,35 +184,35 @@ class LinearMPC:
 
             model = envs.mj_model(model)
         if not isinstance(model, mujoco.MjModel):
-            raise ValueError(f"model must be a task name or a mujoco.MjModel, got {type(model).__name__}")
+            raise ConfigError(f"model must be a task name or a mujoco.MjModel, got {type(model).__name__}")
         if model.nu < 1:
-            raise ValueError("the model has no actuators: nothing to control")
+            raise ConfigError("the model has no actuators: nothing to control")
         if model.na > 0:
-            raise ValueError(f"the model has {model.na} actuator activations, which qpos/qvel do not observe")
+            raise ConfigError(f"the model has {model.na} actuator activations, which qpos/qvel do not observe")
         if isinstance(horizon, bool) or not isinstance(horizon, int | np.integer) or horizon < 1:
-            raise ValueError(f"horizon must be a positive integer, got {horizon!r}")
+            raise ConfigError(f"horizon must be a positive integer, got {horizon!r}")
         if not (eps > 0 and np.isfinite(eps)):
-            raise ValueError(f"eps must be positive and finite, got {eps}")
+            raise ConfigError(f"eps must be positive and finite, got {eps}")
         if max_iter < 1:
-            raise ValueError(f"max_iter must be >= 1, got {max_iter}")
+            raise ConfigError(f"max_iter must be >= 1, got {max_iter}")
         self.model = model
         nq, nv, nu = model.nq, model.nv, model.nu
         self.qpos_ref = _vector("qpos_ref", model.qpos0 if qpos_ref is None else qpos_ref, nq)
         self.qvel_ref = _vector("qvel_ref", np.zeros(nv) if qvel_ref is None else qvel_ref, nv)
         self.ctrl_ref = _vector("ctrl_ref", np.zeros(nu) if ctrl_ref is None else ctrl_ref, nu)
-        if q_diag is None:
-            q_diag = (1.0, 10.0, 0.1, 0.1) if nv == 2 else np.ones(2 * nv)
-        q = _vector("q_diag", q_diag, 2 * nv)
+        q = _vector("q_diag", np.ones(2 * nv) if q_diag is None else q_diag, 2 * nv)
         if np.any(q < 0):
-            raise ValueError(f"q_diag must be >= 0, got {q}")
+            raise ConfigError(f"q_diag must be >= 0, got {q}")
         r_diag = _vector("r", r, nu)
         if np.any(r_diag <= 0):
-            raise ValueError(f"r must be > 0, got {r_diag}")
+            raise ConfigError(f"r must be > 0, got {r_diag}")
         limited = model.actuator_ctrllimited.astype(bool)
         self.ctrl_min = np.where(limited, model.actuator_ctrlrange[:, 0], -np.inf)  # (nu,)
         self.ctrl_max = np.where(limited, model.actuator_ctrlrange[:, 1], np.inf)  # (nu,)
         if np.any(self.ctrl_ref < self.ctrl_min) or np.any(self.ctrl_ref > self.ctrl_max):
-            raise ValueError(f"ctrl_ref {self.ctrl_ref} is outside the control range [{self.ctrl_min}, {self.ctrl_max}]")
+            raise ConfigError(
+                f"ctrl_ref {self.ctrl_ref} is outside the control range [{self.ctrl_min}, {self.ctrl_max}]"
+            )
         self.horizon = int(horizon)
 
         self.linearization = linearize(model, self.qpos_ref, self.qvel_ref, self.ctrl_ref, eps)
@@ -219,7 +221,9 @@ class LinearMPC:
         try:
             P = scipy.linalg.solve_discrete_are(A, B, Q, R)
         except (np.linalg.LinAlgError, ValueError) as error:
-            raise ValueError(f"no stabilising LQR solution about this reference (not stabilisable?): {error}") from None
+            raise ConfigError(
+                f"no stabilising LQR solution about this reference (not stabilisable?): {error}"
+            ) from None
         self.terminal_cost = P  # (2 nv, 2 nv)
         self.lqr_gain = np.linalg.solve(R + B.T @ P @ B, B.T @ P @ A)  # (nu, 2 nv), u = -K x
 
@@ -285,7 +289,7 @@ class LinearMPC:
             raise ShapeError(f"LinearMPC expects a state of shape {expected} ([qpos, qvel]), got {state.shape}")
         if not np.all(np.isfinite(state)):
             action = np.clip(self.ctrl_ref, self.ctrl_min, self.ctrl_max)
-            info = {"solve_ms": 0.0, "status": float(STATUS_BAD_STATE), "osqp_status": 0.0, "iterations": 0.0}
+            info = {"solve_ms": 0.0, "status": float(STATUS_NONFINITE_STATE), "osqp_status": 0.0, "iterations": 0.0}
             return SkillOutput(action, {**info, "cost": 0.0})
         x0 = self.error(state)
         start = time.perf_counter()
@@ -293,13 +297,17 @@ class LinearMPC:
         result = self._solver.solve(raise_error=False)
         solve_ms = 1e3 * (time.perf_counter() - start)
         U = np.array(result.x, dtype=float)
-        solved = result.info.status_val == osqp.SolverStatus.OSQP_SOLVED and bool(np.all(np.isfinite(U)))
-        if solved:
-            status, u0, cost = STATUS_OK, U[: self.model.nu], self._cost(x0, U)
+        if not np.all(np.isfinite(U)):
+            status = STATUS_NONFINITE_SOLUTION
+        elif result.info.status_val != osqp.SolverStatus.OSQP_SOLVED:
+            status = STATUS_NOT_CONVERGED
+        else:
+            status = STATUS_OK
+        if status == STATUS_OK:
+            u0, cost = U[: self.model.nu], self._cost(x0, U)
         else:
             self._cold_start()  # a failed solve leaves a useless warm start
-            status, u0 = STATUS_SOLVER_FAILED, -self.lqr_gain @ x0
-            cost = float(x0 @ self.terminal_cost @ x0)
+            u0, cost = -self.lqr_gain @ x0, float(x0 @ self.terminal_cost @ x0)
         action = np.clip(self.ctrl_ref + u0, self.ctrl_min, self.ctrl_max)
         info = {
             "solve_ms": solve_ms,

@@ -1,0 +1,154 @@
+"""The action filter, state filters and the composed environment on the real cartpole."""
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+from envs import make
+from hrtc.composition import ActionFilter, ComposedEnv, KeysFilter, SkillLibrary, SkillSlot, blend, build_library
+from hrtc.errors import ConfigError, ShapeError, UnknownNameError
+from hrtc.skill import Skill, SkillOutput
+from skills.static import StaticIntent
+
+PROPOSALS = np.array([[-1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 0.8], [0.3, -0.2, 0.1]])
+
+
+@pytest.mark.parametrize("k", range(4))
+@pytest.mark.parametrize("mode", ["sum", "convex"])
+def test_one_hot_weights_give_exactly_that_skill(k, mode):
+    weights = np.eye(4)[k]
+    np.testing.assert_array_equal(blend(weights, PROPOSALS, mode), PROPOSALS[k])
+
+
+def test_sum_mode_is_the_papers_weighted_sum():
+    w = np.array([0.2, 0.5, 0.1, 0.9])
+    np.testing.assert_allclose(blend(w, PROPOSALS, "sum"), sum(w[k] * PROPOSALS[k] for k in range(4)))
+
+
+def test_convex_mode_is_a_convex_combination():
+    rng = np.random.default_rng(0)
+    for _ in range(100):
+        w = rng.random(4)
+        a = blend(w, PROPOSALS, "convex")
+        assert np.all(a >= PROPOSALS.min(0) - 1e-12) and np.all(a <= PROPOSALS.max(0) + 1e-12)
+    np.testing.assert_array_equal(blend(np.zeros(4), PROPOSALS, "convex"), np.zeros(3))
+
+
+def test_action_filter_respects_bounds_for_any_weights():
+    f = ActionFilter(np.array([-1.0, 0.0, 0.0]), np.array([1.0, 1.0, 1.0]), "sum")
+    rng = np.random.default_rng(1)
+    for _ in range(200):
+        w = rng.normal(0.5, 2.0, size=4)  # Normal weights stray outside [0, 1]
+        a = f(w, PROPOSALS * rng.uniform(-5, 5))
+        assert np.all(a >= f.low) and np.all(a <= f.high)
+
+
+def test_weights_outside_unit_interval_are_clipped():
+    np.testing.assert_array_equal(blend(np.array([2.0, -1.0, 0.0, 0.0]), PROPOSALS), PROPOSALS[0])
+
+
+def test_unknown_blend_mode():
+    with pytest.raises(UnknownNameError, match="convex, sum"):
+        ActionFilter(np.zeros(1), np.ones(1), "max")  # type: ignore[arg-type]
+
+
+def test_keys_filter_selects_in_order_and_names_missing_keys():
+    state = {"a": np.array([1.0]), "b": np.array([2.0, 3.0])}
+    np.testing.assert_array_equal(KeysFilter(("b", "a"))(state), [2.0, 3.0, 1.0])
+    with pytest.raises(UnknownNameError, match="valid state keys: a, b"):
+        KeysFilter(("c",))(state)
+
+
+class _Counter:
+    """A skill that counts its calls and proposes the count (to observe rates)."""
+
+    state_keys = ("cart_position",)
+
+    def __init__(self) -> None:
+        self.calls = 0
+
+    def reset(self, rng: np.random.Generator) -> None:
+        self.calls = 0
+
+    def act(self, state: np.ndarray) -> SkillOutput:
+        self.calls += 1
+        return SkillOutput(np.array([self.calls / 100.0]), {})
+
+
+def test_counter_is_a_skill():
+    assert isinstance(_Counter(), Skill)
+
+
+def _composed(*slots: SkillSlot, mode: str = "sum") -> ComposedEnv:
+    return ComposedEnv(make("cartpole_swingup"), SkillLibrary(list(slots)), mode)  # type: ignore[arg-type]
+
+
+def test_composed_env_applies_the_blend_and_reports_it():
+    push = SkillSlot("push", StaticIntent([0.6]), KeysFilter(()))
+    pull = SkillSlot("pull", StaticIntent([-0.2]), KeysFilter(()))
+    env = _composed(push, pull)
+    assert env.action_space == gym.spaces.Box(0.0, 1.0, (2,), np.float32)
+    env.reset(seed=0)
+    _, _, _, _, info = env.step(np.array([0.5, 1.0]))
+    assert info["action"] == pytest.approx([0.5 * 0.6 - 0.2])
+    np.testing.assert_allclose(info["proposals"], [[0.6], [-0.2]])
+    assert set(info["skills"]) == {"push", "pull"}
+
+
+def test_one_hot_in_the_env_equals_running_that_skill_alone():
+    slot = SkillSlot("push", StaticIntent([0.7]), KeysFilter(()))
+    env = _composed(slot, SkillSlot("hold", StaticIntent([0.0]), KeysFilter(())))
+    raw = make("cartpole_swingup")
+    obs_c, _ = env.reset(seed=3)
+    obs_r, _ = raw.reset(seed=3)
+    for _ in range(50):
+        obs_c, rc, *_ = env.step(np.array([1.0, 0.0]))
+        obs_r, rr, *_ = raw.step(np.array([0.7], np.float32))
+    np.testing.assert_array_equal(obs_c, obs_r)
+
+
+def test_skill_rate_holds_the_action_between_solves():
+    counter = _Counter()
+    env = _composed(SkillSlot("counter", counter, KeysFilter(("cart_position",)), every=5))
+    env.reset(seed=0)
+    actions = [env.step(np.array([1.0]))[4]["action"][0] for _ in range(12)]
+    assert counter.calls == 3  # steps 0, 5, 10
+    assert actions[:5] == [0.01] * 5 and actions[5:10] == [0.02] * 5
+
+
+def test_wrong_weight_shape_and_wrong_proposal_shape_are_clear_errors():
+    env = _composed(SkillSlot("hold", StaticIntent([0.0]), KeysFilter(())))
+    env.reset(seed=0)
+    with pytest.raises(ShapeError, match="expected 1 skill weights"):
+        env.step(np.array([0.5, 0.5]))
+    with pytest.raises(ShapeError, match="'wide'"):
+        _composed(SkillSlot("wide", StaticIntent([0.0, 0.0]), KeysFilter(()))).reset(seed=0)
+
+
+class _NaNSkill:
+    state_keys = ()
+
+    def reset(self, rng):
+        pass
+
+    def act(self, state):
+        return SkillOutput(np.array([np.nan]), {"status": 1.0})
+
+
+def test_non_finite_proposal_falls_back_and_is_counted():
+    env = _composed(SkillSlot("bad", _NaNSkill(), KeysFilter(())))
+    env.reset(seed=0)
+    _, _, _, _, info = env.step(np.array([1.0]))
+    assert np.all(np.isfinite(info["action"])) and info["action"][0] == 0.0
+    assert info["skill_faults"][0] >= 1
+
+
+def test_build_library_from_config_and_its_errors():
+    lib = build_library({"hold": {"skill": {"_target_": "skills.static.StaticIntent", "action": [0.0]}}})
+    assert lib.names == ("hold",)
+    with pytest.raises(ConfigError, match="expected keys"):
+        build_library({"hold": {"_target_": "skills.static.StaticIntent"}})
+    with pytest.raises(ConfigError, match="could not be built"):
+        build_library({"x": {"skill": {"_target_": "skills.nope.Missing"}}})
+    with pytest.raises(ConfigError, match="at least one"):
+        build_library({})
