@@ -181,11 +181,17 @@ class ComposedEnv(gym.Wrapper):
 
     Each step: every skill proposes for the current state, the action filter blends the proposals with ``w``, the
     task steps with the blended action. ``info`` carries ``weights`` (K,), ``proposals`` (K, A), ``action`` (A,),
-    ``skill_faults`` (K,) and per-skill diagnostics under ``skills``.
+    ``skill_faults`` (K,) and per-skill diagnostics under ``skills`` (those of the last env step).
+
+    ``decision_every=k``: one meta-policy decision holds its weights for ``k`` env steps while the skills act at every
+    step (the meta-policy and its skills run at distinct rates); the rewards of the ``k`` steps are summed.
     """
 
-    def __init__(self, env: gym.Env, library: SkillLibrary, mode: BlendMode = "sum") -> None:
+    def __init__(self, env: gym.Env, library: SkillLibrary, mode: BlendMode = "sum", decision_every: int = 1) -> None:
         super().__init__(env)
+        if int(decision_every) < 1:
+            raise ConfigError(f"decision_every must be >= 1, got {decision_every}")
+        self.decision_every = int(decision_every)
         space = env.action_space
         if not isinstance(space, gym.spaces.Box) or len(space.shape) != 1:
             raise ConfigError(f"HRTC composes 1-D Box actions; this task's action space is {space}")
@@ -219,17 +225,22 @@ class ComposedEnv(gym.Wrapper):
         weights = np.asarray(weights, dtype=np.float64).reshape(-1)
         if weights.shape != (len(self.library),):
             raise ShapeError(f"expected {len(self.library)} skill weights {self.library.names}, got {weights.shape}")
-        proposals = self._proposals
-        action = self.action_filter(weights, proposals)
-        obs, reward, terminated, truncated, info = self.env.step(action.astype(np.float32))
+        total = 0.0
+        for _ in range(self.decision_every):
+            proposals, skill_info = self._proposals, self._skill_info
+            action = self.action_filter(weights, proposals)
+            obs, reward, terminated, truncated, info = self.env.step(action.astype(np.float32))
+            total += float(reward)
+            self._step += 1
+            if terminated or truncated:
+                break
+            self._propose()
         info.update(
             weights=np.clip(weights, 0.0, 1.0),
             proposals=proposals,
             action=action,
+            env_steps=self._step,
             skill_faults=np.array([s.faults for s in self.library.slots], dtype=np.float64),
-            skills=dict(zip(self.library.names, self._skill_info, strict=True)),
+            skills=dict(zip(self.library.names, skill_info, strict=True)),
         )
-        self._step += 1
-        if not (terminated or truncated):
-            self._propose()
-        return obs, reward, terminated, truncated, info
+        return obs, total, terminated, truncated, info

@@ -77,15 +77,16 @@ class NormalDistribution:
 
 
 class BetaHead(nn.Module):
-    """Linear layer to ``(alpha, beta)``, each ``softplus(.) + 1``. Zero-initialised weights, so every component
-    starts at ``Beta(1 + ln 2, 1 + ln 2)``: mean 0.5, wide (std about 0.27)."""
+    """Linear layer to ``(alpha, beta)``, each ``softplus(.) + 1``. Near-zero weights and bias ``init_bias``, so every
+    component starts at ``Beta(c, c)`` with ``c = softplus(init_bias) + 1``: mean 0.5; ``init_bias=0`` gives
+    c = 1.69 (std 0.27), a very negative one the uniform Beta(1, 1) (std 0.29)."""
 
-    def __init__(self, in_features: int, dim: int) -> None:
+    def __init__(self, in_features: int, dim: int, init_bias: float = 0.0) -> None:
         super().__init__()
         self.dim = dim
         self.linear = nn.Linear(in_features, 2 * dim)
         nn.init.orthogonal_(self.linear.weight, gain=0.01)
-        nn.init.zeros_(self.linear.bias)
+        nn.init.constant_(self.linear.bias, float(init_bias))
 
     def forward(self, features: torch.Tensor) -> BetaDistribution:
         alpha, beta = (F.softplus(self.linear(features)) + 1.0).chunk(2, dim=-1)
@@ -109,9 +110,9 @@ class NormalHead(nn.Module):
 
 
 def make_head(kind: str, in_features: int, dim: int, **kwargs: float) -> BetaHead | NormalHead:
-    """``kind`` is ``"beta"`` or ``"normal"``; keyword arguments go to :class:`NormalHead`."""
+    """``kind`` is ``"beta"`` or ``"normal"``; keyword arguments go to the head's constructor."""
     if kind == "beta":
-        return BetaHead(in_features, dim)
+        return BetaHead(in_features, dim, **kwargs)
     if kind == "normal":
         return NormalHead(in_features, dim, **kwargs)
     from hrtc.errors import UnknownNameError

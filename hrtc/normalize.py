@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import torch
 
 
 class RunningMeanStd:
@@ -20,12 +21,14 @@ class RunningMeanStd:
         m2 = self.var * self.count + b_var * b_count + delta**2 * self.count * b_count / total
         self.mean, self.var, self.count = self.mean + delta * b_count / total, m2 / total, total
 
-    def state_dict(self) -> dict[str, np.ndarray | float]:
-        return {"mean": self.mean.copy(), "var": self.var.copy(), "count": float(self.count)}
+    def state_dict(self) -> dict[str, torch.Tensor | float]:
+        """Tensors and floats only, so that ``torch.load(weights_only=True)`` reads it back."""
+        mean, var = torch.tensor(np.asarray(self.mean)), torch.tensor(np.asarray(self.var))
+        return {"mean": mean, "var": var, "count": float(self.count)}
 
     def load_state_dict(self, state: dict) -> None:
-        self.mean = np.asarray(state["mean"], np.float64).copy()
-        self.var = np.asarray(state["var"], np.float64).copy()
+        self.mean = np.array(state["mean"], np.float64)
+        self.var = np.array(state["var"], np.float64)
         self.count = float(state["count"])
 
 

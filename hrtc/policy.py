@@ -35,6 +35,7 @@ class ActorCritic(nn.Module):
         dist: ``"beta"`` or ``"normal"``.
         hidden: hidden widths, shared by actor and critic.
         normal_init_mean, normal_init_log_std: the Normal head's starting point (in the sample's units).
+        beta_init_bias: the Beta head's starting bias (see :class:`~hrtc.distributions.BetaHead`).
     """
 
     def __init__(
@@ -45,11 +46,15 @@ class ActorCritic(nn.Module):
         hidden: Sequence[int] = (64, 64),
         normal_init_mean: float = 0.0,
         normal_init_log_std: float = 0.0,
+        beta_init_bias: float = 0.0,
     ) -> None:
         super().__init__()
         self.obs_dim, self.out_dim, self.dist_kind = obs_dim, out_dim, dist
         self.actor_body = mlp(obs_dim, hidden)
-        kwargs = {"init_mean": normal_init_mean, "init_log_std": normal_init_log_std} if dist == "normal" else {}
+        if dist == "normal":
+            kwargs = {"init_mean": normal_init_mean, "init_log_std": normal_init_log_std}
+        else:
+            kwargs = {"init_bias": beta_init_bias}
         self.actor_head = make_head(dist, hidden[-1] if hidden else obs_dim, out_dim, **kwargs)
         self.critic = nn.Sequential(mlp(obs_dim, hidden), nn.Linear(hidden[-1] if hidden else obs_dim, 1))
         nn.init.orthogonal_(self.critic[-1].weight, gain=1.0)

@@ -48,7 +48,9 @@ class RunConfig:
     skills: Mapping[str, Any]
     algo: str = "hrtc"
     dist: str = "beta"
+    beta_init_bias: float = 0.0
     action_filter: str = "sum"
+    decision_every: int = 1
     seed: int = 1
     steps: int = 100_000
     num_envs: int = 2
@@ -75,7 +77,8 @@ class RunConfig:
         positive = {"steps": self.steps, "num_envs": self.num_envs, "eval_every": self.eval_every,
                     "eval_episodes": self.eval_episodes, "checkpoint_every": self.checkpoint_every,
                     "ppo.num_steps": self.ppo.num_steps, "ppo.update_epochs": self.ppo.update_epochs,
-                    "ppo.num_minibatches": self.ppo.num_minibatches, "torch_threads": self.torch_threads}  # fmt: skip
+                    "ppo.num_minibatches": self.ppo.num_minibatches, "torch_threads": self.torch_threads,
+                    "algo.decision_every": self.decision_every}  # fmt: skip
         for name, value in positive.items():
             if not isinstance(value, int) or isinstance(value, bool) or value < 1:
                 raise ConfigError(f"{name} must be a positive integer, got {value!r}")
@@ -93,7 +96,7 @@ class RunConfig:
 
     @classmethod
     def from_mapping(cls, cfg: Mapping[str, Any]) -> RunConfig:
-        """Build from the resolved config tree (plain dicts): ``task``, ``algo``, ``dist``, ``ppo`` and top-level keys."""
+        """Build from the resolved config tree (plain dicts): ``task``, ``algo``, ``dist``, ``ppo``, top-level keys."""
         cfg = dict(cfg)
         task, algo, dist = dict(cfg.pop("task")), dict(cfg.pop("algo")), dict(cfg.pop("dist"))
         ppo_cfg = dict(cfg.pop("ppo", {}) or {})
@@ -116,7 +119,9 @@ class RunConfig:
             env_kwargs=task.get("env_kwargs") or {},
             algo=str(algo.get("name")),
             action_filter=str(algo.get("action_filter", "sum")),
+            decision_every=algo.get("decision_every", 1),
             dist=str(dist.get("name")),
+            beta_init_bias=float(dist.get("init_bias", 0.0)),
             ppo=PPOConfig(**ppo_cfg),
             **kwargs,
         )
@@ -124,19 +129,21 @@ class RunConfig:
 
 # --------------------------------------------------------------------------------------------------- environments
 def make_env(task: str, algo: str, skills: Mapping[str, Any], action_filter: str = "sum",
-             env_kwargs: Mapping[str, Any] | None = None) -> gym.Env:  # fmt: skip
+             env_kwargs: Mapping[str, Any] | None = None, decision_every: int = 1) -> gym.Env:  # fmt: skip
     """The environment the policy acts in: the task itself (``ppo``) or the task composed with its skills (``hrtc``)."""
     import envs
 
     env = envs.make(task, **dict(env_kwargs or {}))
     if algo == "hrtc":
-        env = ComposedEnv(env, build_library(skills), mode=action_filter)  # type: ignore[arg-type]
+        env = ComposedEnv(env, build_library(skills), action_filter, decision_every)  # type: ignore[arg-type]
     return env
 
 
 def env_factory(cfg: RunConfig) -> Callable[[], gym.Env]:
     """A picklable thunk, so that vector-environment workers build their own env and skills."""
-    return functools.partial(make_env, cfg.task, cfg.algo, cfg.skills, cfg.action_filter, cfg.env_kwargs)
+    return functools.partial(
+        make_env, cfg.task, cfg.algo, cfg.skills, cfg.action_filter, cfg.env_kwargs, cfg.decision_every
+    )
 
 
 def to_env_action(u: np.ndarray, space: gym.spaces.Box, dist: str) -> np.ndarray:
@@ -150,7 +157,7 @@ def to_env_action(u: np.ndarray, space: gym.spaces.Box, dist: str) -> np.ndarray
 def policy_for(cfg: RunConfig, obs_dim: int, space: gym.spaces.Box) -> ActorCritic:
     centre = float(np.mean((space.low + space.high) / 2))
     log_std = float(np.log(np.mean(space.high - space.low) / 4))  # std a quarter of the range
-    return ActorCritic(obs_dim, int(space.shape[0]), cfg.dist, cfg.hidden, centre, log_std)
+    return ActorCritic(obs_dim, int(space.shape[0]), cfg.dist, cfg.hidden, centre, log_std, cfg.beta_init_bias)
 
 
 # --------------------------------------------------------------------------------------------------- evaluation
@@ -200,7 +207,7 @@ class Trainer:
         self.ckpt_dir = self.run_dir / "checkpoints"
         torch.set_num_threads(cfg.torch_threads)
         random.seed(cfg.seed)
-        np.random.seed(cfg.seed)
+        np.random.seed(cfg.seed)  # noqa: NPY002  (libraries that still draw from the legacy global RNG)
         torch.manual_seed(cfg.seed)
         self.generator = torch.Generator().manual_seed(cfg.seed)
 
@@ -211,7 +218,10 @@ class Trainer:
         self.policy = policy_for(cfg, obs_dim, space)
         self.optimizer = torch.optim.Adam(self.policy.parameters(), lr=cfg.ppo.learning_rate, eps=1e-5)
         self.normalizer = ObsNormalizer((obs_dim,)) if cfg.ppo.normalize_obs else None
-        self.reward_scaler = RewardScaler(cfg.num_envs, cfg.ppo.gamma) if cfg.ppo.scale_reward else None
+        # One decision spans decision_every env steps: discount per decision accordingly.
+        self.steps_per_decision = cfg.decision_every if cfg.algo == "hrtc" else 1
+        self.gamma = cfg.ppo.gamma**self.steps_per_decision
+        self.reward_scaler = RewardScaler(cfg.num_envs, self.gamma) if cfg.ppo.scale_reward else None
         self.global_step, self.update, self.episodes = 0, 0, 0
         self.best_eval = -np.inf
         self.wall_offset = 0.0
@@ -234,7 +244,7 @@ class Trainer:
             "rng": {
                 "torch": torch.get_rng_state(),
                 "generator": self.generator.get_state(),
-                "numpy": np.random.get_state()[1],
+                "numpy": torch.from_numpy(np.random.get_state()[1].astype(np.int64)),  # noqa: NPY002
                 "python": list(random.getstate()[1]),
             },
             "meta": {
@@ -273,7 +283,7 @@ class Trainer:
         rng = state["rng"]
         torch.set_rng_state(rng["torch"])
         self.generator.set_state(rng["generator"])
-        np.random.set_state(("MT19937", np.asarray(rng["numpy"], dtype=np.uint32), 624, 0, 0.0))
+        np.random.set_state(("MT19937", rng["numpy"].numpy().astype(np.uint32), 624, 0, 0.0))  # noqa: NPY002
         log.info("resumed from %s at step %d", path, self.global_step)
 
     # ------------------------------------------------------------------ evaluation
@@ -309,7 +319,8 @@ class Trainer:
         cfg, ppo = self.cfg, self.cfg.ppo
         n, t_len = cfg.num_envs, ppo.num_steps
         batch_size = n * t_len
-        num_updates = -(-cfg.steps // batch_size)
+        env_steps_per_update = batch_size * self.steps_per_decision
+        num_updates = -(-cfg.steps // env_steps_per_update)
         vec = self._vector_env()
         space = self.eval_env.action_space
         obs_dim = self.policy.obs_dim
@@ -357,13 +368,13 @@ class Trainer:
                         final = np.stack([info["final_obs"][i] for i in idx])
                         with torch.no_grad():
                             v_final = self.policy.value(torch.as_tensor(self._normalize(final))).numpy()
-                        scaled[idx] += ppo.gamma * v_final
+                        scaled[idx] += self.gamma * v_final
                     buf_rew[t], buf_done[t] = scaled, done
-                    self.global_step += n
+                    self.global_step += n * self.steps_per_decision
                 rollout_seconds = time.perf_counter() - tic
                 with torch.no_grad():
                     next_value = self.policy.value(torch.as_tensor(self._normalize(obs))).numpy()
-                adv, ret = compute_gae(buf_rew, buf_val, buf_done, next_value, ppo.gamma, ppo.gae_lambda)
+                adv, ret = compute_gae(buf_rew, buf_val, buf_done, next_value, self.gamma, ppo.gae_lambda)
                 batch = Batch(
                     torch.as_tensor(buf_obs.reshape(batch_size, obs_dim)),
                     torch.as_tensor(buf_u.reshape(batch_size, -1)),
@@ -382,9 +393,9 @@ class Trainer:
                     "episodes": self.episodes,
                     "train/episode_reward": train_return,
                     "charts/learning_rate": self.optimizer.param_groups[0]["lr"],
-                    "charts/SPS": batch_size / elapsed,
+                    "charts/SPS": env_steps_per_update / elapsed,
                     "charts/update_seconds": time.perf_counter() - tu,
-                    "charts/rollout_SPS": batch_size / rollout_seconds,
+                    "charts/rollout_SPS": env_steps_per_update / rollout_seconds,
                 })  # fmt: skip
                 self._write("train", stats)
                 if self.global_step >= next_eval or self.update == num_updates:
@@ -394,9 +405,9 @@ class Trainer:
                     self.save()
                     next_ckpt = (self.global_step // cfg.checkpoint_every + 1) * cfg.checkpoint_every
                 if bar is not None:
-                    bar.update(batch_size)
+                    bar.update(env_steps_per_update)
                     bar.set_postfix(train_return=f"{train_return:.0f}", eval=f"{last_eval:.0f}",
-                                    SPS=f"{batch_size / elapsed:.0f}")  # fmt: skip
+                                    SPS=f"{env_steps_per_update / elapsed:.0f}")  # fmt: skip
         except KeyboardInterrupt:
             log.warning("interrupted: saving a checkpoint at step %d", self.global_step)
             self.save()

@@ -74,10 +74,10 @@ def accelerations(
         m l cos(th) x'' + (I + m l^2) th'' = m g l sin(th) - b_th th'
     """
     s, c = math.sin(theta), math.cos(theta)
-    m, l = p.pole_mass, p.com_length
-    a11, a12 = p.cart_mass + m, m * l * c
-    a21, a22 = m * l * c, p.hinge_inertia
-    b1 = p.gear * u - p.cart_damping * x_dot + m * l * s * theta_dot**2
-    b2 = m * p.gravity * l * s - p.pole_damping * theta_dot
+    m, length = p.pole_mass, p.com_length
+    a11, a12 = p.cart_mass + m, m * length * c
+    a21, a22 = m * length * c, p.hinge_inertia
+    b1 = p.gear * u - p.cart_damping * x_dot + m * length * s * theta_dot**2
+    b2 = m * p.gravity * length * s - p.pole_damping * theta_dot
     det = a11 * a22 - a12 * a21
     return (a22 * b1 - a12 * b2) / det, (a11 * b2 - a21 * b1) / det

@@ -51,14 +51,28 @@ def hinge_dofs(model: Any) -> np.ndarray:
     return np.asarray(model.jnt_dofadr[hinges], dtype=int)
 
 
+HINGE_ERRORS = ("wrap", "sin")
+
+
 def state_error(
-    model: Any, qpos_ref: np.ndarray, qvel_ref: np.ndarray, qpos: np.ndarray, qvel: np.ndarray
+    model: Any,
+    qpos_ref: np.ndarray,
+    qvel_ref: np.ndarray,
+    qpos: np.ndarray,
+    qvel: np.ndarray,
+    hinge_error: str = "wrap",
 ) -> np.ndarray:
-    """Tangent-space deviation ``[dq, dv]`` (2 nv,) of ``(qpos, qvel)`` from the reference; hinge angles wrapped."""
+    """Tangent-space deviation ``[dq, dv]`` (2 nv,) of ``(qpos, qvel)`` from the reference.
+
+    Hinge angle errors are either wrapped to [-pi, pi) (``"wrap"``) or taken as ``sin`` of the wrapped error
+    (``"sin"``): equal to first order near the reference, but continuous all round the circle and zero again at the
+    opposite point, so the linear law gives no bang-bang flip as a hanging pole crosses +-pi.
+    """
     dq = np.zeros(model.nv)
     mujoco.mj_differentiatePos(model, dq, 1.0, np.asarray(qpos_ref, float), np.asarray(qpos, float))
     dofs = hinge_dofs(model)
-    dq[dofs] = np.mod(dq[dofs] + np.pi, 2.0 * np.pi) - np.pi
+    wrapped = np.mod(dq[dofs] + np.pi, 2.0 * np.pi) - np.pi
+    dq[dofs] = np.sin(wrapped) if hinge_error == "sin" else wrapped
     return np.concatenate([dq, np.asarray(qvel, float) - qvel_ref])
 
 
@@ -157,6 +171,7 @@ class LinearMPC:
         r: diagonal of R, a scalar or (nu,), per control unit^2; > 0.
         eps: finite-difference step for the linearisation.
         max_iter, eps_abs, eps_rel: OSQP settings.
+        hinge_error: ``"wrap"`` or ``"sin"``, how hinge angle errors enter the linear model (see ``state_error``).
 
     Info keys: ``solve_ms`` (wall time of the QP update and solve, ms), ``status`` (0 ok; 1 or 2 the solve failed
     and the clipped LQR action was used; 3 non-finite state), ``osqp_status`` (OSQP's status code, 1 = solved),
@@ -178,6 +193,7 @@ class LinearMPC:
         max_iter: int = 200,
         eps_abs: float = 1e-5,
         eps_rel: float = 1e-5,
+        hinge_error: str = "wrap",
     ) -> None:
         if isinstance(model, str):
             import envs
@@ -195,6 +211,9 @@ class LinearMPC:
             raise ConfigError(f"eps must be positive and finite, got {eps}")
         if max_iter < 1:
             raise ConfigError(f"max_iter must be >= 1, got {max_iter}")
+        if hinge_error not in HINGE_ERRORS:
+            raise ConfigError(f"hinge_error must be one of {HINGE_ERRORS}, got {hinge_error!r}")
+        self.hinge_error = hinge_error
         self.model = model
         nq, nv, nu = model.nq, model.nv, model.nu
         self.qpos_ref = _vector("qpos_ref", model.qpos0 if qpos_ref is None else qpos_ref, nq)
@@ -274,7 +293,7 @@ class LinearMPC:
     def error(self, state: np.ndarray) -> np.ndarray:
         """The linear model's state ``[dq, dv]`` (2 nv,) for ``state = [qpos, qvel]`` (nq + nv,)."""
         nq = self.model.nq
-        return state_error(self.model, self.qpos_ref, self.qvel_ref, state[:nq], state[nq:])
+        return state_error(self.model, self.qpos_ref, self.qvel_ref, state[:nq], state[nq:], self.hinge_error)
 
     def _cost(self, x0: np.ndarray, U: np.ndarray) -> float:
         predicted = self._Sx @ x0 + self._Sc

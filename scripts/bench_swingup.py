@@ -1,0 +1,260 @@
+"""Benchmark for the core: HRTC (Beta) on cartpole_swingup against each skill alone, a uniform blend, our PPO (Beta
+and Normal) on raw actions and stable-baselines3 PPO, at one env-step budget, over several seeds.
+
+    python scripts/bench_swingup.py [--seeds 1 2 3] [--steps 51200] [--out benchmarks/results/cartpole_swingup_core]
+
+Each training run is the real CLI (``scripts/train.py``) in a subprocess; its eval.csv gives the learning curve and
+steps-to-threshold, its train.csv the throughput (env steps/s of the training loop, evaluation excluded). Writes
+results.json (everything raw), table.md, curves.png, command.txt and machine.txt into ``--out``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+TASK = "cartpole_swingup"
+THRESHOLD = 800.0
+
+
+def train_run(name: str, overrides: list[str], run_dir: Path, steps: int, eval_every: int) -> dict:
+    """Run scripts/train.py; returns its eval curve and throughput."""
+    if not (run_dir / "eval.csv").exists() or _last_step(run_dir) < steps:
+        cmd = [sys.executable, str(ROOT / "scripts" / "train.py"), f"task={TASK}", f"steps={steps}",
+               f"eval_every={eval_every}", "progress=false", f"hydra.run.dir={run_dir}", *overrides]  # fmt: skip
+        tic = time.perf_counter()
+        subprocess.run(cmd, check=True, cwd=ROOT, stdout=subprocess.DEVNULL)
+        print(f"  {name}: {time.perf_counter() - tic:.0f} s", flush=True)
+    evals, train = pd.read_csv(run_dir / "eval.csv"), pd.read_csv(run_dir / "train.csv")
+    return {
+        "curve": {"step": evals["step"].tolist(), "episode_reward": evals["episode_reward"].tolist()},
+        "final": float(evals["episode_reward"].iloc[-1]),
+        "best": float(evals["episode_reward"].max()),
+        "steps_to_threshold": _steps_to(evals, THRESHOLD),
+        "sps_median": float(train["charts/SPS"].median()),
+        "rollout_sps_median": float(train["charts/rollout_SPS"].median()),
+        "wall_seconds": float(evals["wall_seconds"].iloc[-1]),
+    }
+
+
+def _last_step(run_dir: Path) -> int:
+    try:
+        return int(pd.read_csv(run_dir / "eval.csv")["step"].iloc[-1])
+    except Exception:  # noqa: BLE001  (a missing or empty file means: not run yet)
+        return -1
+
+
+def _steps_to(evals: pd.DataFrame, threshold: float) -> int | None:
+    hit = evals.loc[evals["episode_reward"] >= threshold, "step"]
+    return int(hit.iloc[0]) if len(hit) else None
+
+
+def fixed_weights(weights: np.ndarray, episodes: int, seed: int) -> list[float]:
+    """Returns of the composed task under constant skill weights (a skill alone, or a fixed blend)."""
+    from omegaconf import OmegaConf
+
+    from hrtc.trainer import eval_seeds, make_env
+
+    skills = OmegaConf.to_container(OmegaConf.load(ROOT / "hrtc/conf/task/cartpole_swingup.yaml"))["task"]["skills"]
+    env = make_env(TASK, "hrtc", skills)
+    returns = []
+    for s in eval_seeds(seed, episodes):
+        env.reset(seed=s)
+        total, done = 0.0, False
+        while not done:
+            _, reward, terminated, truncated, _ = env.step(weights)
+            total += reward
+            done = terminated or truncated
+        returns.append(total)
+    return returns
+
+
+def sb3_run(seed: int, steps: int, eval_every: int, episodes: int, out: Path) -> dict:
+    """stable-baselines3 PPO with its default hyperparameters on the same gymnasium adapter and eval seeds."""
+    cache = out / f"sb3_ppo_seed{seed}.json"
+    if cache.exists():
+        return json.loads(cache.read_text())
+    import torch
+    from stable_baselines3 import PPO
+
+    import envs
+    from hrtc.trainer import eval_seeds
+
+    torch.set_num_threads(1)
+    env, eval_env = envs.make(TASK), envs.make(TASK)
+    env.reset(seed=seed)
+    model = PPO("MlpPolicy", env, seed=seed, device="cpu", verbose=0)
+    curve = {"step": [], "episode_reward": []}
+
+    def evaluate() -> float:
+        returns = []
+        for s in eval_seeds(seed, episodes):
+            obs, _ = eval_env.reset(seed=s)
+            total, done = 0.0, False
+            while not done:
+                action, _ = model.predict(obs, deterministic=True)
+                obs, reward, terminated, truncated, _ = eval_env.step(action)
+                total += reward
+                done = terminated or truncated
+            returns.append(total)
+        return float(np.mean(returns))
+
+    tic, train_seconds = time.perf_counter(), 0.0
+    curve["step"].append(0)
+    curve["episode_reward"].append(evaluate())
+    while model.num_timesteps < steps:
+        t0 = time.perf_counter()
+        model.learn(eval_every, reset_num_timesteps=False)
+        train_seconds += time.perf_counter() - t0
+        curve["step"].append(int(model.num_timesteps))
+        curve["episode_reward"].append(evaluate())
+    evals = pd.DataFrame(curve)
+    result = {
+        "curve": curve,
+        "final": curve["episode_reward"][-1],
+        "best": max(curve["episode_reward"]),
+        "steps_to_threshold": _steps_to(evals, THRESHOLD),
+        "sps_median": model.num_timesteps / train_seconds,
+        "wall_seconds": time.perf_counter() - tic,
+    }
+    cache.write_text(json.dumps(result))
+    return result
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3])
+    parser.add_argument("--steps", type=int, default=51_200)
+    parser.add_argument("--eval-every", type=int, default=5_120)
+    parser.add_argument("--eval-episodes", type=int, default=3)
+    parser.add_argument("--fixed-episodes", type=int, default=10)
+    parser.add_argument("--out", type=Path, default=ROOT / "benchmarks/results/cartpole_swingup_core")
+    parser.add_argument(
+        "--runs", type=Path, default=ROOT / "runs/bench_swingup", help="run directories (not committed)"
+    )
+    parser.add_argument("--skip-sb3", action="store_true")
+    args = parser.parse_args()
+    args.out.mkdir(parents=True, exist_ok=True)
+    common = [f"eval_episodes={args.eval_episodes}"]
+    variants = {
+        "hrtc_beta": ["algo=hrtc", "dist=beta"],
+        "ppo_beta": ["algo=ppo", "dist=beta"],
+        "ppo_normal": ["algo=ppo", "dist=normal"],
+    }
+    results: dict = {"task": TASK, "threshold": THRESHOLD, "steps": args.steps, "seeds": args.seeds, "runs": {}}
+    for name, overrides in variants.items():
+        for seed in args.seeds:
+            print(f"{name} seed {seed}", flush=True)
+            run_dir = args.runs / name / f"seed{seed}"
+            results["runs"].setdefault(name, {})[seed] = train_run(
+                name, [*overrides, *common, f"seed={seed}"], run_dir, args.steps, args.eval_every
+            )
+    if not args.skip_sb3:
+        for seed in args.seeds:
+            print(f"sb3_ppo seed {seed}", flush=True)
+            results["runs"].setdefault("sb3_ppo", {})[seed] = sb3_run(
+                seed, args.steps, args.eval_every, args.eval_episodes, args.out
+            )
+    names = ["swingup", "balance", "tracker", "hold"]
+    fixed = {f"{n} alone": np.eye(len(names))[i] for i, n in enumerate(names)}
+    fixed["uniform blend (1/K each)"] = np.full(len(names), 1 / len(names))
+    fixed["uniform blend (1 each)"] = np.ones(len(names))
+    results["fixed"] = {k: fixed_weights(w, args.fixed_episodes, seed=0) for k, w in fixed.items()}
+    write_report(results, args)
+
+
+def write_report(results: dict, args: argparse.Namespace) -> None:
+    out = args.out
+    (out / "results.json").write_text(json.dumps(results, indent=1))
+    (out / "command.txt").write_text("python scripts/bench_swingup.py " + " ".join(sys.argv[1:]) + "\n")
+    (out / "machine.txt").write_text(_machine())
+    lines = [
+        f"# {TASK}: {results['steps']} env steps, seeds {results['seeds']}, threshold {THRESHOLD:.0f}",
+        "",
+        "Evaluation return: mean of deterministic episodes (Beta mean for HRTC) on seeds disjoint from training.",
+        "",
+        "| method | final return per seed | median final | best (median) | steps to 800 per seed | median steps to 800 "
+        "| train env steps/s (median) |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for name, runs in results["runs"].items():
+        finals = [r["final"] for r in runs.values()]
+        bests = [r["best"] for r in runs.values()]
+        hits = [r["steps_to_threshold"] for r in runs.values()]
+        med_hit = _median_steps(hits)
+        lines.append(
+            f"| {name} | {', '.join(f'{f:.0f}' for f in finals)} | {np.median(finals):.0f} | {np.median(bests):.0f} "
+            f"| {', '.join('-' if h is None else str(h) for h in hits)} | {med_hit} "
+            f"| {np.median([r['sps_median'] for r in runs.values()]):.0f} |"
+        )
+    for name, returns in results["fixed"].items():
+        lines.append(f"| {name} (no training) | {np.mean(returns):.0f} ± {np.std(returns):.0f} over "
+                     f"{len(returns)} episodes | {np.mean(returns):.0f} | | | | |")  # fmt: skip
+    runs = results["runs"]
+    if "hrtc_beta" in runs and "ppo_beta" in runs:
+        ratio = np.median([r["sps_median"] for r in runs["hrtc_beta"].values()]) / np.median(
+            [r["sps_median"] for r in runs["ppo_beta"].values()]
+        )
+        lines += [
+            "",
+            f"Throughput ratio HRTC / PPO (Beta), same machine, same run, medians over seeds: **{ratio:.2f}**",
+        ]
+    (out / "table.md").write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+    _plot(results, out / "curves.png")
+
+
+def _median_steps(hits: list) -> str:
+    # A seed that never reached the threshold counts as above the budget.
+    values = sorted(np.inf if h is None else h for h in hits)
+    med = values[len(values) // 2] if len(values) % 2 else np.mean(values[len(values) // 2 - 1 : len(values) // 2 + 1])
+    return "not reached" if not np.isfinite(med) else f"{med:.0f}"
+
+
+def _plot(results: dict, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(8, 5))
+    for i, (name, runs) in enumerate(results["runs"].items()):
+        curves = [pd.Series(r["curve"]["episode_reward"], index=r["curve"]["step"]) for r in runs.values()]
+        frame = pd.concat(curves, axis=1).sort_index().interpolate(limit_area="inside")
+        color = f"C{i}"
+        ax.plot(frame.index, frame.median(axis=1), color=color, label=f"{name} (median of {len(curves)})")
+        ax.fill_between(frame.index, frame.min(axis=1), frame.max(axis=1), color=color, alpha=0.15)
+    for j, (name, returns) in enumerate(results["fixed"].items()):
+        ax.axhline(np.mean(returns), color=f"C{j + 4}", ls=":", lw=1, label=name)
+    ax.axhline(THRESHOLD, color="k", ls="--", lw=1, label="threshold 800")
+    ax.set_xlabel("env steps")
+    ax.set_ylabel("evaluation return")
+    ax.set_title(f"{TASK}: median and min-max band over seeds")
+    ax.legend(fontsize=7, loc="upper left")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+
+
+def _machine() -> str:
+    import torch
+
+    return (
+        f"{platform.platform()}; python {platform.python_version()}; {os.cpu_count()} cores; torch {torch.__version__};"
+        f" {platform.processor() or platform.machine()}; date {time.strftime('%Y-%m-%d')}\n"
+    )
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,70 @@
+"""The real entry point, run as a user runs it: two PPO iterations, and one-line errors for bad input."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+from hrtc.checkpoint import load_checkpoint
+
+ROOT = Path(__file__).resolve().parents[1]
+TRAIN = [sys.executable, str(ROOT / "scripts" / "train.py")]
+
+
+def _run(args, tmp_path=None, timeout=300):
+    return subprocess.run(TRAIN + list(args), capture_output=True, text=True, timeout=timeout, cwd=tmp_path or ROOT)
+
+
+@pytest.mark.parametrize("algo", ["hrtc", "ppo"])
+def test_train_two_iterations_writes_the_run_directory(tmp_path, algo):
+    run_dir = tmp_path / "run"
+    result = _run(
+        [
+            f"algo={algo}",
+            "task=cartpole_swingup",
+            "steps=1024",
+            "ppo.num_steps=256",
+            "eval_every=512",
+            "eval_episodes=1",
+            "progress=false",
+            f"hydra.run.dir={run_dir}",
+        ],  # fmt: skip
+        tmp_path,
+    )
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert "done: 1024 steps" in result.stdout
+    train = pd.read_csv(run_dir / "train.csv")
+    evals = pd.read_csv(run_dir / "eval.csv")
+    assert list(train["step"]) == [512, 1024]
+    for column in ("losses/approx_kl", "losses/clipfrac", "losses/explained_variance", "charts/SPS"):
+        assert column in train and train[column].notna().all()
+    assert list(evals["step"]) == [0, 512, 1024]
+    assert evals["episode_reward"].between(0, 1000).all()
+    state = load_checkpoint(run_dir / "checkpoints" / "last.pt")
+    assert state["global_step"] == 1024 and state["meta"]["algo"] == algo
+    if algo == "hrtc":
+        assert state["meta"]["skills"] == ["swingup", "balance", "tracker", "hold"]
+    assert "name: cartpole_swingup" in (run_dir / "config.yaml").read_text()
+
+
+@pytest.mark.parametrize(
+    "args,expected",
+    [
+        (["task=cartpol"], "unknown task 'cartpol'; valid tasks: cartpole_swingup"),
+        (["algo=sac"], "unknown algo 'sac'; valid algos: hrtc, ppo"),
+        (["dist=gamma"], "unknown dist 'gamma'; valid dists: beta, normal"),
+        (["steps=[1"], "malformed override"),
+        (["stepz=10"], "cannot set 'stepz'"),
+        (["steps=-3"], "steps must be a positive integer"),
+        (["ppo.learning_rate=2.0"], "ppo.learning_rate must be in (0, 1)"),
+        (["algo.action_filter=max"], "unknown action filter mode 'max'"),
+    ],
+)
+def test_bad_input_is_one_clear_line_and_a_nonzero_exit(tmp_path, args, expected):
+    result = _run([*args, f"hydra.run.dir={tmp_path / 'run'}"], tmp_path, timeout=120)
+    assert result.returncode == 2
+    lines = [line for line in result.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error: "), result.stderr
+    assert expected in lines[0]
