@@ -34,7 +34,7 @@ def check_overrides(args: Sequence[str], config_name: str = "config") -> None:
     from hydra.errors import HydraException
     from omegaconf.errors import OmegaConfBaseException
 
-    user = [a for a in args if not a.startswith("-")]
+    user = _overrides_only(args)
     try:
         parsed = OverridesParser.create().parse_overrides(user)
     except HydraException as error:
@@ -54,6 +54,25 @@ def check_overrides(args: Sequence[str], config_name: str = "config") -> None:
         fail(f"{_first_line(error)}")
     finally:
         GlobalHydra.instance().clear()
+
+
+# Hydra's own flags that take a value (``--cfg job``, ``-cn config``...): their values are not overrides.
+_VALUE_FLAGS = {"--cfg", "-c", "--package", "-p", "--config-path", "-cp", "--config-name", "-cn", "--config-dir",
+                "-cd", "--experimental-rerun", "--info", "-i"}  # fmt: skip
+
+
+def _overrides_only(args: Sequence[str]) -> list[str]:
+    out, skip = [], False
+    for arg in args:
+        if skip:
+            skip = False
+            if "=" not in arg:
+                continue
+        if arg.startswith("-"):
+            skip = arg in _VALUE_FLAGS
+            continue
+        out.append(arg)
+    return out
 
 
 def _first_line(error: BaseException) -> str:

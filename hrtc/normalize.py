@@ -27,8 +27,8 @@ class RunningMeanStd:
         return {"mean": mean, "var": var, "count": float(self.count)}
 
     def load_state_dict(self, state: dict) -> None:
-        self.mean = np.array(state["mean"], np.float64)
-        self.var = np.array(state["var"], np.float64)
+        self.mean = np.array(torch.as_tensor(state["mean"]).numpy(), np.float64)
+        self.var = np.array(torch.as_tensor(state["var"]).numpy(), np.float64)
         self.count = float(state["count"])
 
 
