@@ -327,7 +327,7 @@ class Trainer:
         buf_obs = np.zeros((t_len, n, obs_dim), np.float32)
         buf_u = np.zeros((t_len, n, self.policy.out_dim), np.float32)
         buf_logp, buf_rew, buf_done, buf_val = (np.zeros((t_len, n), np.float32) for _ in range(4))
-        ep_return, ep_len = np.zeros(n), np.zeros(n, np.int64)
+        ep_return = np.zeros(n)
         recent_returns: list[float] = []
         self._start = time.perf_counter()
         next_eval = (self.global_step // cfg.eval_every + 1) * cfg.eval_every
@@ -357,11 +357,10 @@ class Trainer:
                     obs, reward, terminated, truncated, info = vec.step(to_env_action(u_np, space, cfg.dist))
                     done = terminated | truncated
                     ep_return += reward
-                    ep_len += 1
                     for i in np.flatnonzero(done):
                         recent_returns.append(float(ep_return[i]))
                         self.episodes += 1
-                        ep_return[i], ep_len[i] = 0.0, 0
+                        ep_return[i] = 0.0
                     scaled = self.reward_scaler(reward, done) if self.reward_scaler else reward.astype(np.float64)
                     if truncated.any():  # bootstrap the time limit: it is not a terminal state
                         idx = np.flatnonzero(truncated)

@@ -178,6 +178,9 @@ class CartTrackingMPC:
             "max_iter": self.max_iter,
             "expand": True,  # SX evaluation of the MX graph: several times faster for this small problem
             "print_time": False,
+            # A failed evaluation (NaN in a derivative, e.g. at an infeasible start past the rails) is handled by the
+            # fallback and reported in info["status"]; CasADi would also print a warning per evaluation.
+            "show_eval_warnings": False,
             "print_header": False,
             "print_iteration": False,
             "print_status": False,
