@@ -7,7 +7,7 @@ from typing import Any
 
 import gymnasium as gym
 
-from hrtc.errors import UnknownNameError
+from hrtc.errors import ConfigError, UnknownNameError
 
 _REGISTRY: dict[str, Callable[..., gym.Env]] = {}
 
@@ -35,11 +35,18 @@ def make(name: str, **kwargs: Any) -> gym.Env:
     return factory(**kwargs)
 
 
-def mj_model(name: str) -> Any:
-    """The ``mujoco.MjModel`` of task ``name`` (a copy, for skills that build a model of the plant)."""
+def mj_model(task_or_model: Any) -> Any:
+    """The ``mujoco.MjModel`` a skill models its plant with: a copy of task ``task_or_model``'s model if it is a
+    task name, the model itself if it already is a ``mujoco.MjModel``."""
     import copy
 
-    env = make(name)
+    import mujoco
+
+    if isinstance(task_or_model, mujoco.MjModel):
+        return task_or_model
+    if not isinstance(task_or_model, str):
+        raise ConfigError(f"model must be a task name or a mujoco.MjModel, got {type(task_or_model).__name__}")
+    env = make(task_or_model)
     try:
         return copy.copy(env.unwrapped.physics.model.ptr)
     finally:

@@ -195,12 +195,9 @@ class LinearMPC:
         eps_rel: float = 1e-5,
         hinge_error: str = "wrap",
     ) -> None:
-        if isinstance(model, str):
-            import envs
+        import envs  # here: envs pulls in dm_control, needed only to read the model
 
-            model = envs.mj_model(model)
-        if not isinstance(model, mujoco.MjModel):
-            raise ConfigError(f"model must be a task name or a mujoco.MjModel, got {type(model).__name__}")
+        model = envs.mj_model(model)
         if model.nu < 1:
             raise ConfigError("the model has no actuators: nothing to control")
         if model.na > 0:

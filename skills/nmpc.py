@@ -118,7 +118,9 @@ class CartTrackingMPC:
         if not (np.isfinite(rail_margin) and rail_margin >= 0.0):
             raise ConfigError(f"rail_margin must be a finite number >= 0 m, got {rail_margin!r}")
 
-        mj_model = _load_mj_model(model)
+        import envs  # here: envs pulls in dm_control, needed only to read the parameters
+
+        mj_model = envs.mj_model(model)
         self.params = CartpoleParams.from_mj_model(mj_model)
         slider_range = _slider_range(mj_model)
         self.position_min = float(slider_range[0] + rail_margin)  # m
@@ -309,15 +311,6 @@ class CartTrackingMPC:
 def _shift(block: np.ndarray, width: int) -> np.ndarray:
     """Drop the first ``width`` entries of a stacked trajectory and repeat its last ``width`` entries at the end."""
     return np.concatenate([block[width:], block[-width:]])
-
-
-def _load_mj_model(model: str) -> Any:
-    import envs  # imported here: envs pulls in dm_control, needed only to read the parameters
-
-    try:
-        return envs.mj_model(model)
-    except KeyError as error:
-        raise ConfigError(f"model must be a cart-pole task name: {error}") from None
 
 
 def _slider_range(mj_model: Any) -> np.ndarray:

@@ -56,10 +56,9 @@ class EnergySwingUp:
         centring_gain: float = 0.6,
         centring_damping: float = 0.3,
     ) -> None:
-        if isinstance(model, str):
-            import envs
+        import envs  # here: envs pulls in dm_control, needed only to read the model
 
-            model = envs.mj_model(model)
+        model = envs.mj_model(model)
         try:
             self.params = CartpoleParams.from_mj_model(model)
         except (ValueError, AttributeError, TypeError) as error:

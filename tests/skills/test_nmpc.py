@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 import envs
-from hrtc.errors import ConfigError, ShapeError
+from hrtc.errors import ConfigError, ShapeError, UnknownNameError
 from hrtc.skill import Skill
 from skills.nmpc import STATUS_NONFINITE_STATE, STATUS_OK, CartTrackingMPC
 
@@ -298,12 +298,16 @@ def test_set_reference_changes_the_target() -> None:
         ({"rail_margin": 2.0}, "rail_margin"),
         ({"x_ref": 1.75}, "x_ref"),
         ({"x_ref": float("nan")}, "x_ref"),
-        ({"model": "no_such_task"}, "no_such_task"),
     ],
 )
 def test_rejects_bad_arguments(kwargs: dict[str, Any], message: str) -> None:
     with pytest.raises(ConfigError, match=message):
         CartTrackingMPC(**kwargs)
+
+
+def test_unknown_model_names_the_valid_tasks() -> None:
+    with pytest.raises(UnknownNameError, match="unknown task 'no_such_task'; valid tasks: .*cartpole_swingup"):
+        CartTrackingMPC(model="no_such_task")
 
 
 def test_rejects_bad_state_shape_and_reference() -> None:
