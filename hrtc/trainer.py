@@ -30,6 +30,8 @@ from hrtc.ppo import Batch, PPOConfig, compute_gae, ppo_update
 
 log = logging.getLogger(__name__)
 
+ROOT_CONF = Path(__file__).resolve().parent / "conf"  # the Hydra configs shipped with the package
+
 ALGOS = ("hrtc", "ppo")
 DISTS = ("beta", "normal")
 TRAIN_COLUMNS = (

@@ -1,0 +1,62 @@
+"""The trainer on the real cartpole: resuming continues the files, one seed gives one result, configs validate."""
+
+import pandas as pd
+import pytest
+from omegaconf import OmegaConf
+
+from hrtc.checkpoint import load_checkpoint
+from hrtc.errors import CheckpointError, ConfigError, UnknownNameError
+from hrtc.ppo import PPOConfig
+from hrtc.trainer import ROOT_CONF, RunConfig, Trainer
+
+SKILLS = OmegaConf.to_container(OmegaConf.load(ROOT_CONF / "task" / "cartpole_swingup.yaml"))["task"]["skills"]
+
+
+def _cfg(steps: int, **kwargs) -> RunConfig:
+    base = dict(task="cartpole_swingup", skills=SKILLS, seed=3, steps=steps, num_envs=2, vector="sync",
+                eval_every=500, eval_episodes=1, progress=False, decision_every=5,
+                ppo=PPOConfig(num_steps=50, learning_rate=1e-3))  # fmt: skip
+    return RunConfig(**{**base, **kwargs})
+
+
+def _eval_rows(run_dir):
+    return pd.read_csv(run_dir / "eval.csv").drop(columns=["wall_seconds"])
+
+
+def test_resume_continues_the_csvs_and_the_step_count(tmp_path):
+    Trainer(_cfg(1000), tmp_path).train()
+    Trainer(_cfg(2000), tmp_path, resume=True).train()
+    assert list(pd.read_csv(tmp_path / "train.csv")["step"]) == [500, 1000, 1500, 2000]
+    assert list(_eval_rows(tmp_path)["step"]) == [0, 500, 1000, 1500, 2000]
+    assert load_checkpoint(tmp_path / "checkpoints" / "last.pt")["global_step"] == 2000
+
+
+def test_same_seed_same_evaluations(tmp_path):
+    Trainer(_cfg(1500), tmp_path / "a").train()
+    Trainer(_cfg(1500), tmp_path / "b").train()
+    pd.testing.assert_frame_equal(_eval_rows(tmp_path / "a"), _eval_rows(tmp_path / "b"))
+
+
+def test_resume_refuses_a_checkpoint_of_another_skill_set(tmp_path):
+    Trainer(_cfg(500), tmp_path).train()
+    fewer = {k: v for k, v in SKILLS.items() if k != "hold"}
+    with pytest.raises(CheckpointError, match="trained with skills"):
+        Trainer(_cfg(1000, skills=fewer), tmp_path, resume=True)
+
+
+@pytest.mark.parametrize(
+    "kwargs,error,match",
+    [
+        ({"algo": "sac"}, UnknownNameError, "valid algos: hrtc, ppo"),
+        ({"dist": "gamma"}, UnknownNameError, "valid dists: beta, normal"),
+        ({"eval_every": 0}, ConfigError, "eval_every must be a positive integer"),
+        ({"num_envs": 2.5}, ConfigError, "num_envs"),
+        ({"decision_every": 0}, ConfigError, "decision_every"),
+        ({"ppo": PPOConfig(learning_rate=0.0)}, ConfigError, "learning_rate"),
+        ({"ppo": PPOConfig(num_steps=2, num_minibatches=8)}, ConfigError, "exceeds the rollout size"),
+        ({"skills": {}}, ConfigError, "needs skills"),
+    ],
+)
+def test_run_config_validation(kwargs, error, match):
+    with pytest.raises(error, match=match):
+        _cfg(1000, **kwargs)
