@@ -120,8 +120,10 @@ def test_without_active_bounds_the_mpc_is_the_lqr_law() -> None:
         np.testing.assert_allclose(out.action, -mpc.lqr_gain @ mpc.error(state), rtol=1e-4, atol=1e-6)
 
 
+@pytest.mark.parametrize("hinge_error", ["wrap", "sin"])
 @pytest.mark.parametrize("seed", [0, 1, 2, 3])
-def test_balances_from_perturbed_upright(cartpole: Any, mpc: LinearMPC, seed: int) -> None:
+def test_balances_from_perturbed_upright(cartpole: Any, seed: int, hinge_error: str) -> None:
+    mpc = LinearMPC(hinge_error=hinge_error)  # "sin" is what the cartpole_swingup task uses
     rng = np.random.default_rng(seed)
     cartpole.reset(seed=seed)
     mpc.reset(rng)
@@ -155,6 +157,15 @@ def test_balances_from_perturbed_upright(cartpole: Any, mpc: LinearMPC, seed: in
         f"max |x| {np.max(np.abs(carts)):.2f} m; "
         f"solve ms over {times.size} solves so far: median {np.median(times):.3f}, p99 {np.percentile(times, 99):.3f}"
     )
+
+
+def test_sin_hinge_error_is_continuous_and_vanishes_hanging() -> None:
+    mpc = LinearMPC(hinge_error="sin")
+    for angle in (0.1, -0.4, 2.0):
+        assert mpc.error(np.array([0.3, angle, 0.5, -1.0]))[1] == pytest.approx(np.sin(angle))
+    # Either side of hanging the error is about 0, where the wrapped error jumps from +pi to -pi.
+    near_pi = [mpc.error(np.array([0.0, np.pi + d, 0.0, 0.0]))[1] for d in (-1e-3, 1e-3)]
+    assert np.allclose(near_pi, 0.0, atol=2e-3)
 
 
 def test_cannot_swing_up_from_hanging(cartpole: Any, mpc: LinearMPC) -> None:
