@@ -12,7 +12,7 @@ import logging
 import random
 import time
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
@@ -162,6 +162,11 @@ def policy_for(cfg: RunConfig, obs_dim: int, space: gym.spaces.Box) -> ActorCrit
     return ActorCritic(obs_dim, int(space.shape[0]), cfg.dist, cfg.hidden, centre, log_std, cfg.beta_init_bias)
 
 
+def normalize_obs(normalizer: ObsNormalizer | None, obs: np.ndarray, update: bool = False) -> np.ndarray:
+    """``obs`` (batch, obs_dim) as the policy sees it: normalised when the run normalises, float32 always."""
+    return normalizer(obs, update) if normalizer is not None else obs.astype(np.float32)
+
+
 # --------------------------------------------------------------------------------------------------- evaluation
 @torch.no_grad()
 def evaluate(
@@ -178,8 +183,7 @@ def evaluate(
         obs, _ = env.reset(seed=int(seed))
         total, done, t = 0.0, False, 0
         while not done:
-            nobs = normalizer(obs[None]) if normalizer is not None else obs[None].astype(np.float32)
-            u = policy.distribution(torch.as_tensor(nobs)).mode().numpy()[0]
+            u = policy.distribution(torch.as_tensor(normalize_obs(normalizer, obs[None]))).mode().numpy()[0]
             obs, reward, terminated, truncated, info = env.step(to_env_action(u, env.action_space, dist))
             total += float(reward)
             done = terminated or truncated
@@ -191,7 +195,8 @@ def evaluate(
 
 
 def eval_seeds(seed: int, episodes: int) -> list[int]:
-    """Evaluation episodes use seeds disjoint from training's (``seed + i`` for env i), the same at every evaluation."""
+    """Evaluation episode seeds: the same at every evaluation, and disjoint from the training envs' reset seeds
+    (``1000 * seed + ...``, below a million for any seed under 1000)."""
     return [1_000_000 + 1_000 * seed + k for k in range(episodes)]
 
 
@@ -226,7 +231,8 @@ class Trainer:
         self.reward_scaler = RewardScaler(cfg.num_envs, self.gamma) if cfg.ppo.scale_reward else None
         self.global_step, self.update, self.episodes = 0, 0, 0
         self.best_eval = -np.inf
-        self.wall_offset = 0.0
+        self.wall_offset = 0.0  # wall time of the run before a resume, s
+        self._start = time.perf_counter()  # reset when train() starts
         if resume:
             self._restore(self.ckpt_dir / "last.pt")
         self.sinks: list[Sink] = [CsvSink(self.run_dir, {"train": TRAIN_COLUMNS, "eval": EVAL_COLUMNS}, resume), *sinks]
@@ -242,7 +248,7 @@ class Trainer:
             "update": self.update,
             "episodes": self.episodes,
             "best_eval": float(self.best_eval),
-            "wall_seconds": self.wall_offset + (time.perf_counter() - self._start if hasattr(self, "_start") else 0.0),
+            "wall_seconds": self.wall_offset + time.perf_counter() - self._start,
             "rng": {
                 "torch": torch.get_rng_state(),
                 "generator": self.generator.get_state(),
@@ -314,7 +320,7 @@ class Trainer:
         return gym.vector.SyncVectorEnv(fns, autoreset_mode=mode)
 
     def _normalize(self, obs: np.ndarray, update: bool = False) -> np.ndarray:
-        return self.normalizer(obs, update) if self.normalizer is not None else obs.astype(np.float32)
+        return normalize_obs(self.normalizer, obs, update)
 
     def train(self) -> dict[str, float]:
         """Run until ``cfg.steps`` env steps; returns the final evaluation and throughput."""
@@ -430,10 +436,3 @@ def _progress(total: int, initial: int, enabled: bool, desc: str) -> Any:
     from tqdm.auto import tqdm
 
     return tqdm(total=total, initial=initial, desc=desc, unit="step", dynamic_ncols=True, smoothing=0.1)
-
-
-def config_summary(cfg: RunConfig) -> dict[str, Any]:
-    """A plain-dict view of the run config (for logs and benchmark records)."""
-    out = asdict(cfg)
-    out["skills"] = list(cfg.skills)
-    return out

@@ -26,7 +26,17 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 TASK = "cartpole_swingup"
-THRESHOLD = 800.0
+
+
+def _task_config() -> dict:
+    from omegaconf import OmegaConf
+
+    from hrtc.trainer import ROOT_CONF
+
+    return OmegaConf.to_container(OmegaConf.load(ROOT_CONF / "task" / f"{TASK}.yaml"))["task"]
+
+
+THRESHOLD = float(_task_config()["solve_threshold"])  # the task's own solve rule (800)
 
 
 def train_run(name: str, overrides: list[str], run_dir: Path, steps: int, eval_every: int) -> dict:
@@ -63,12 +73,9 @@ def _steps_to(evals: pd.DataFrame, threshold: float) -> int | None:
 
 def fixed_weights(weights: np.ndarray, episodes: int, seed: int) -> list[float]:
     """Returns of the composed task under constant skill weights (a skill alone, or a fixed blend)."""
-    from omegaconf import OmegaConf
-
     from hrtc.trainer import eval_seeds, make_env
 
-    skills = OmegaConf.to_container(OmegaConf.load(ROOT / "hrtc/conf/task/cartpole_swingup.yaml"))["task"]["skills"]
-    env = make_env(TASK, "hrtc", skills)
+    env = make_env(TASK, "hrtc", _task_config()["skills"])
     returns = []
     for s in eval_seeds(seed, episodes):
         env.reset(seed=s)
@@ -264,7 +271,7 @@ def _plot(results: dict, path: Path) -> None:
     greys = plt.get_cmap("Greys")(np.linspace(0.35, 0.9, len(results["fixed"])))
     for shade, (name, returns) in zip(greys, results["fixed"].items(), strict=True):
         ax.axhline(np.mean(returns), color=shade, ls=":", lw=1.2, label=f"{name}: {np.mean(returns):.0f}")
-    ax.axhline(THRESHOLD, color="k", ls="--", lw=1, label="threshold 800")
+    ax.axhline(THRESHOLD, color="k", ls="--", lw=1, label=f"threshold {THRESHOLD:.0f}")
     ax.set_xlabel("env steps")
     ax.set_ylabel("evaluation return")
     ax.set_title(f"{TASK}: median and min-max band over seeds")
