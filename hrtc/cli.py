@@ -79,3 +79,17 @@ def _first_line(error: BaseException) -> str:
     lines = [line.strip() for line in str(error).splitlines() if line.strip()]
     message = "; ".join(lines[:3]) if lines else type(error).__name__
     return message.replace("Could not override", "cannot set").replace("Key ", "key ")
+
+
+def task_config(name: str) -> dict:
+    """The ``task`` block (``name``, ``skills``, ``env_kwargs``, ``solve_threshold``...) of ``conf/task/<name>.yaml``,
+    resolved to plain containers. Raises :class:`~hrtc.errors.UnknownNameError` listing the shipped tasks."""
+    from omegaconf import OmegaConf
+
+    from hrtc.errors import UnknownNameError
+
+    if name not in group_choices("task"):
+        raise UnknownNameError("task", name, tuple(group_choices("task")))
+    text = (resources.files(CONFIG_MODULE) / "task" / f"{name}.yaml").read_text()
+    cfg = OmegaConf.to_container(OmegaConf.create(text), resolve=True)
+    return dict(cfg["task"])  # type: ignore[index]

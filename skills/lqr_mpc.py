@@ -264,25 +264,33 @@ class LinearMPC:
 
         lower = np.tile(self.ctrl_min - self.ctrl_ref, N)
         upper = np.tile(self.ctrl_max - self.ctrl_ref, N)
-        self._solver = osqp.OSQP()
-        self._solver.setup(
+        self._bounds = (lower, upper)
+        self._max_iter, self._eps = int(max_iter), (float(eps_abs), float(eps_rel))
+        self._solver = self._make_solver()
+        self._num_vars = N * nu
+
+    def _make_solver(self) -> osqp.OSQP:
+        """A fresh OSQP instance (its adaptive rho is solver state too: a reset must not inherit it)."""
+        lower, upper = self._bounds
+        solver = osqp.OSQP()
+        solver.setup(
             sp.triu(sp.csc_matrix(self._H), format="csc"),
             self._g.copy(),
-            sp.identity(N * nu, format="csc"),
+            sp.identity(self._H.shape[0], format="csc"),
             np.where(np.isfinite(lower), lower, -osqp.constant("OSQP_INFTY")),
             np.where(np.isfinite(upper), upper, osqp.constant("OSQP_INFTY")),
             verbose=False,
             warm_starting=True,
             polishing=False,  # polishing prints to stdout even with verbose=False
-            max_iter=int(max_iter),
-            eps_abs=float(eps_abs),
-            eps_rel=float(eps_rel),
+            max_iter=self._max_iter,
+            eps_abs=self._eps[0],
+            eps_rel=self._eps[1],
         )
-        self._num_vars = N * nu
+        return solver
 
     def reset(self, rng: np.random.Generator) -> None:
-        """Drop the warm start so an episode does not depend on the previous one (``rng`` is unused)."""
-        self._cold_start()
+        """A fresh solver, so an episode does not depend on the previous one (``rng`` is unused)."""
+        self._solver = self._make_solver()
 
     def _cold_start(self) -> None:
         self._solver.warm_start(x=np.zeros(self._num_vars), y=np.zeros(self._num_vars))
