@@ -264,6 +264,12 @@ class Trainer:
                 "out_dim": self.policy.out_dim,
                 "hidden": list(self.cfg.hidden),
                 "action_filter": self.cfg.action_filter,
+                # Enough to rebuild this policy as a skill of another task (skills.learned): plain containers only.
+                "skills_cfg": _plain(self.cfg.skills),
+                "env_kwargs": _plain(self.cfg.env_kwargs),
+                "decision_every": self.steps_per_decision,
+                "action_low": self.eval_env.action_space.low.tolist(),
+                "action_high": self.eval_env.action_space.high.tolist(),
             },
         }
 
@@ -428,6 +434,17 @@ class Trainer:
         wall = time.perf_counter() - self._start
         return {"final_eval": last_eval, "best_eval": float(self.best_eval), "steps": self.global_step,
                 "wall_seconds": wall}  # fmt: skip
+
+
+def _plain(value: Any) -> Any:
+    """``value`` as nested dicts, lists and scalars (what a ``weights_only`` checkpoint may hold)."""
+    if isinstance(value, Mapping):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_plain(v) for v in value]
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
 
 
 def _progress(total: int, initial: int, enabled: bool, desc: str) -> Any:
