@@ -5,7 +5,7 @@ A skill passes when, over a set of real task states:
 
 - it declares ``state_keys`` (a tuple of names the task's ``skill_state()`` provides);
 - ``act`` returns a :class:`~hrtc.skill.SkillOutput` whose action has the task's action shape, is finite and lies
-  within the action bounds (a small tolerance), and whose diagnostics are finite numbers;
+  within the action bounds (a small tolerance), and whose diagnostics are finite scalar numbers;
 - it is deterministic under a seed: two passes over the same states after ``reset`` with the same seed agree exactly;
 - ``reset`` forgets the past: a pass after other states have been seen equals a pass from a fresh reset.
 """
@@ -114,9 +114,14 @@ def check_skill(
         if not isinstance(out.info, Mapping):
             problems.append(f"step {i}: info is {type(out.info).__name__}, not a mapping")
         else:
-            bad = {k: v for k, v in out.info.items() if not np.all(np.isfinite(np.asarray(v, dtype=np.float64)))}
-            if bad:
-                problems.append(f"step {i}: non-finite diagnostics {bad}")
+            try:
+                bad = {k: v for k, v in out.info.items() if not np.isfinite(float(v))}
+            except (TypeError, ValueError):
+                bad = {k: v for k, v in out.info.items() if np.ndim(v) != 0}
+                problems.append(f"step {i}: diagnostics must be scalar numbers, got {bad}")
+            else:
+                if bad:
+                    problems.append(f"step {i}: non-finite diagnostics {bad}")
         if len(problems) >= 10:
             break
     if problems:

@@ -10,6 +10,8 @@ from __future__ import annotations
 import sys
 from collections.abc import Sequence
 from importlib import resources
+from pathlib import Path
+from typing import Any
 
 CONFIG_MODULE = "hrtc.conf"
 GROUPS = ("task", "algo", "dist")
@@ -93,3 +95,68 @@ def task_config(name: str) -> dict:
     text = (resources.files(CONFIG_MODULE) / "task" / f"{name}.yaml").read_text()
     cfg = OmegaConf.to_container(OmegaConf.create(text), resolve=True)
     return dict(cfg["task"])  # type: ignore[index]
+
+
+def parse_options(args: Sequence[str], defaults: dict, usage: str) -> dict:
+    """``key=value`` command-line options over ``defaults``, each parsed as its default's type (str, bool, int; YAML
+    when the default is None: ``weights=[0.5,0.5]``); unknown keys and malformed values exit with one clear line."""
+    import yaml
+
+    options = dict(defaults)
+    for arg in args:
+        if arg in ("-h", "--help"):
+            print(usage)
+            raise SystemExit(0)
+        key, sep, text = arg.partition("=")
+        if not sep or not key:
+            fail(f"malformed argument {arg!r}: options look like key=value; valid keys: {', '.join(defaults)}")
+        if key not in defaults:
+            fail(f"unknown option {key!r}; valid keys: {', '.join(defaults)}")
+        default = defaults[key]
+        try:
+            if isinstance(default, str):
+                value = text
+            elif isinstance(default, bool):
+                value = {"true": True, "false": False}[text.lower()]
+            elif isinstance(default, int):
+                value = int(text)
+            else:
+                value = yaml.safe_load(text) if text else None
+        except (KeyError, ValueError, yaml.YAMLError):
+            kind = "true or false" if isinstance(default, bool) else type(default).__name__
+            fail(f"cannot parse {key}={text!r}" + (f" (expected {kind})" if default is not None else ""))
+        options[key] = value
+    return options
+
+
+def start_run(cfg: Any, run_dir: str | Path) -> Any:
+    """Validate the composed config ``cfg`` and build the run's :class:`~hrtc.trainer.Trainer` in ``run_dir`` (its
+    environments and skills, a resumed checkpoint); any problem exits with one line. Writes ``config.yaml``."""
+    from omegaconf import OmegaConf
+
+    from hrtc.errors import HRTCError
+    from hrtc.trainer import RunConfig, Trainer
+
+    run_dir = Path(run_dir)
+    try:
+        run_cfg = RunConfig.from_mapping(OmegaConf.to_container(cfg, resolve=True))
+        run_dir.mkdir(parents=True, exist_ok=True)
+        (run_dir / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
+        return Trainer(run_cfg, run_dir, resume=bool(cfg.get("resume", False)))
+    except HRTCError as error:
+        fail(str(error))
+
+
+def compose(overrides: Sequence[str], config_name: str = "config") -> Any:
+    """The config ``scripts/train.py`` would run with for ``overrides`` (after :func:`check_overrides`)."""
+    from hydra import compose as hydra_compose
+    from hydra import initialize_config_module
+    from hydra.core.global_hydra import GlobalHydra
+
+    check_overrides(overrides, config_name)
+    GlobalHydra.instance().clear()
+    try:
+        with initialize_config_module(CONFIG_MODULE, version_base=None):
+            return hydra_compose(config_name, overrides=[o for o in overrides if not o.startswith("hydra")])
+    finally:
+        GlobalHydra.instance().clear()

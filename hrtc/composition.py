@@ -85,38 +85,68 @@ class SkillSlot:
     """One skill in a library: its name (config name = Rerun entity = registry key), state filter and rate.
 
     ``every``: the skill is asked for a new action every ``every`` env steps and its action is held in between.
+    ``time_budget_ms``: a proposal that took longer is discarded as a fault (the call cannot be pre-empted, but its
+    late action is not used), None for no budget.
+
+    Fault isolation: a skill is third-party solver code. A proposal that raises, is not finite, has the wrong shape or
+    is over budget is replaced by the skill's last good action (zero before it has one), counted in ``faults`` and
+    flagged ``fault = 1`` in its diagnostics; the run goes on. The one exception is a wrong shape before the skill has
+    ever proposed a good action: that is a configuration error (:class:`ShapeError`), raised at the first reset.
+    ``faults`` and ``calls`` count over the slot's lifetime (all episodes).
     """
 
     name: str
     skill: Skill
     state_filter: StateFilter
     every: int = 1
+    time_budget_ms: float | None = None
+    faults: int = 0
+    calls: int = 0
+    last_fault: str = ""
     _held: np.ndarray | None = field(default=None, repr=False)
     _info: Mapping[str, float] = field(default_factory=dict, repr=False)
-    faults: int = 0
+    _good: bool = field(default=False, repr=False)
 
     def reset(self, rng: np.random.Generator) -> None:
         self.skill.reset(rng)
-        self._held, self._info, self.faults = None, {}, 0
+        self._held, self._info = None, {}
 
     def propose(self, state: Mapping[str, np.ndarray], step: int, action_dim: int) -> SkillOutput:
         if self._held is not None and step % self.every != 0:
             return SkillOutput(self._held, self._info)
+        self.calls += 1
         start = time.perf_counter()
-        out = self.skill.act(self.state_filter(state))
-        action = np.asarray(out.action, dtype=np.float64)
-        if action.shape != (action_dim,):
-            raise ShapeError(
-                f"skill {self.name!r} proposed an action of shape {action.shape}; the task's is {(action_dim,)}"
-            )
-        info = dict(out.info)
-        info.setdefault("compute_ms", (time.perf_counter() - start) * 1e3)
-        if not np.all(np.isfinite(action)):
-            # A solver returned NaN/inf: fall back to the last good action (or zero) and count the fault.
+        problem, action, info = "", None, {}
+        filtered = self.state_filter(state)  # outside the isolation: a missing state key is a configuration error
+        try:
+            out = self.skill.act(filtered)
+            action = np.asarray(out.action, dtype=np.float64)
+            info = {k: float(v) for k, v in out.info.items()}
+        except Exception as error:  # noqa: BLE001  (any failure of the skill's own code is isolated here)
+            problem = f"raised {type(error).__name__}: {error}"
+        elapsed = (time.perf_counter() - start) * 1e3
+        if not problem:
+            if action.shape != (action_dim,):
+                if not self._good:
+                    raise ShapeError(f"skill {self.name!r} proposed an action of shape {action.shape}; the task's is "
+                                     f"{(action_dim,)}")  # fmt: skip
+                problem = f"proposed an action of shape {action.shape}, not {(action_dim,)}"
+            elif not np.all(np.isfinite(action)):
+                problem = f"proposed a non-finite action {action}"
+            elif self.time_budget_ms is not None and elapsed > self.time_budget_ms:
+                problem = f"took {elapsed:.1f} ms, over its {self.time_budget_ms:g} ms budget"
+        if problem:
             self.faults += 1
-            log.warning("skill %r proposed a non-finite action; holding its last good action", self.name)
+            self.last_fault = problem
+            if self.faults <= 3 or self.faults % 100 == 0:
+                log.warning("skill %r %s; using its last good action (fault %d of %d calls)", self.name, problem,
+                            self.faults, self.calls)  # fmt: skip
             action = self._held if self._held is not None else np.zeros(action_dim)
-            info["fault"] = 1.0
+            info = {**self._info, **{k: v for k, v in info.items() if np.isfinite(v)}, "fault": 1.0}
+        else:
+            self._good = True
+            info["fault"] = 0.0
+        info["compute_ms"] = info.get("compute_ms", elapsed) if not problem else elapsed
         self._held, self._info = action, info
         return SkillOutput(action, info)
 
@@ -152,26 +182,34 @@ class SkillLibrary:
 def build_library(skills_cfg: Mapping[str, Mapping[str, Any]]) -> SkillLibrary:
     """Build a library from a task config's ``skills`` mapping::
 
-    name: {skill: {_target_: module.Class, ...kwargs}, state: [keys...] (optional), every: 1 (optional)}
+    name: {skill: {_target_: module.Class, ...kwargs}, state: [keys...], every: 1, time_budget_ms: 50}
+
+    (all but ``skill`` optional).
     """
     from hydra.utils import instantiate
 
     slots = []
     for name, spec in skills_cfg.items():
         spec = dict(spec)
-        unknown = set(spec) - {"skill", "state", "every"}
+        unknown = set(spec) - {"skill", "state", "every", "time_budget_ms"}
         if unknown or "skill" not in spec:
-            raise ConfigError(f"skill {name!r}: expected keys skill (required), state, every; got {sorted(spec)}")
+            raise ConfigError(
+                f"skill {name!r}: expected keys skill (required), state, every, time_budget_ms; got {sorted(spec)}"
+            )
         try:
             skill = instantiate(spec["skill"], _convert_="all")
         except Exception as error:  # hydra wraps import and constructor errors: report them on one line
-            cause = error.__cause__ or error
-            raise ConfigError(f"skill {name!r} could not be built: {cause}") from error
+            lines = [line.strip() for line in str(error.__cause__ or error).splitlines() if line.strip()] or [""]
+            detail = lines[0] + (f" {lines[-1]}" if len(lines) > 1 else "")  # hydra's first and hint lines
+            raise ConfigError(f"skill {name!r} could not be built: {detail}") from error
         every = int(spec.get("every", 1))
         if every < 1:
             raise ConfigError(f"skill {name!r}: every must be >= 1, got {every}")
+        budget = spec.get("time_budget_ms")
+        if budget is not None and not float(budget) > 0:
+            raise ConfigError(f"skill {name!r}: time_budget_ms must be > 0, got {budget}")
         keys = tuple(spec["state"]) if spec.get("state") is not None else tuple(skill.state_keys)
-        slots.append(SkillSlot(name, skill, KeysFilter(keys), every))
+        slots.append(SkillSlot(name, skill, KeysFilter(keys), every, float(budget) if budget is not None else None))
     return SkillLibrary(slots)
 
 
@@ -181,7 +219,8 @@ class ComposedEnv(gym.Wrapper):
 
     Each step: every skill proposes for the current state, the action filter blends the proposals with ``w``, the
     task steps with the blended action. ``info`` carries ``weights`` (K,), ``proposals`` (K, A), ``action`` (A,),
-    ``skill_faults`` (K,) and per-skill diagnostics under ``skills`` (those of the last env step).
+    lifetime ``skill_faults`` and ``skill_calls`` (K,) (also in the reset info) and per-skill diagnostics under
+    ``skills`` (those of the last env step, with ``fault`` 1 if the skill faulted at any step of the decision).
 
     ``decision_every=k``: one meta-policy decision holds its weights for ``k`` env steps while the skills act at every
     step (the meta-policy and its skills run at distinct rates); the rewards of the ``k`` steps are summed.
@@ -214,20 +253,28 @@ class ComposedEnv(gym.Wrapper):
             self.env.unwrapped.skill_state(), self._step, self.action_dim
         )
 
+    def fault_counts(self) -> dict[str, np.ndarray]:
+        """Lifetime ``skill_faults`` and ``skill_calls`` per skill, (K,) each."""
+        slots = self.library.slots
+        return {"skill_faults": np.array([s.faults for s in slots], dtype=np.float64),
+                "skill_calls": np.array([s.calls for s in slots], dtype=np.float64)}  # fmt: skip
+
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         obs, info = self.env.reset(seed=seed, options=options)
         self.library.reset(np.random.default_rng(seed) if seed is not None else self.env.np_random)
         self._step = 0
         self._propose()
-        return obs, info
+        return obs, {**info, **self.fault_counts()}
 
     def step(self, weights: np.ndarray):
         weights = np.asarray(weights, dtype=np.float64).reshape(-1)
         if weights.shape != (len(self.library),):
             raise ShapeError(f"expected {len(self.library)} skill weights {self.library.names}, got {weights.shape}")
         total = 0.0
+        faulted = np.zeros(len(self.library))  # a skill's fault at any env step of this decision is reported
         for _ in range(self.decision_every):
             proposals, skill_info = self._proposals, self._skill_info
+            faulted = np.maximum(faulted, [i.get("fault", 0.0) for i in skill_info])
             action = self.action_filter(weights, proposals)
             obs, reward, terminated, truncated, info = self.env.step(action.astype(np.float32))
             total += float(reward)
@@ -240,7 +287,10 @@ class ComposedEnv(gym.Wrapper):
             proposals=proposals,
             action=action,
             env_steps=self._step,
-            skill_faults=np.array([s.faults for s in self.library.slots], dtype=np.float64),
-            skills=dict(zip(self.library.names, skill_info, strict=True)),
+            skills={
+                name: {**i, "fault": float(f)}
+                for name, i, f in zip(self.library.names, skill_info, faulted, strict=True)
+            },  # fmt: skip
+            **self.fault_counts(),
         )
         return obs, total, terminated, truncated, info

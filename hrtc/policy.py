@@ -27,7 +27,11 @@ def mlp(in_dim: int, hidden: Sequence[int], activation: type[nn.Module] = nn.Tan
 
 
 class ActorCritic(nn.Module):
-    """Separate actor and critic MLPs on the (normalised) observation.
+    """Separate actor and critic MLPs on the (normalised) observation, or on an image encoder's features.
+
+    With an ``encoder`` (e.g. :class:`~hrtc.encoders.ConvEncoder`) both MLPs read the features of one shared
+    encoder (the paper's CarRacing network: a convolutional trunk with fully connected actor and critic); the
+    observation stays a flat vector and the encoder reshapes it. Without one the networks are exactly the MLPs.
 
     Args:
         obs_dim: observation size.
@@ -36,6 +40,7 @@ class ActorCritic(nn.Module):
         hidden: hidden widths, shared by actor and critic.
         normal_init_mean, normal_init_log_std: the Normal head's starting point (in the sample's units).
         beta_init_bias: the Beta head's starting bias (see :class:`~hrtc.distributions.BetaHead`).
+        encoder: a module mapping (batch, obs_dim) to (batch, encoder.out_dim) features, or None.
     """
 
     def __init__(
@@ -47,9 +52,14 @@ class ActorCritic(nn.Module):
         normal_init_mean: float = 0.0,
         normal_init_log_std: float = 0.0,
         beta_init_bias: float = 0.0,
+        encoder: nn.Module | None = None,
     ) -> None:
         super().__init__()
         self.obs_dim, self.out_dim, self.dist_kind = obs_dim, out_dim, dist
+        self.encoder = encoder
+        self._features_cache: tuple | None = None
+        if encoder is not None:
+            obs_dim = int(encoder.out_dim)  # the MLPs read the encoder's features
         self.actor_body = mlp(obs_dim, hidden)
         if dist == "normal":
             kwargs = {"init_mean": normal_init_mean, "init_log_std": normal_init_log_std}
@@ -62,8 +72,27 @@ class ActorCritic(nn.Module):
 
     def distribution(self, obs: torch.Tensor) -> BetaDistribution | NormalDistribution:
         """The meta-policy's distribution for ``obs`` (batch, obs_dim)."""
+        if self.encoder is not None:
+            obs = self._features(obs)
         return self.actor_head(self.actor_body(obs))
 
     def value(self, obs: torch.Tensor) -> torch.Tensor:
         """V(s), (batch,)."""
+        if self.encoder is not None:
+            obs = self._features(obs)
         return self.critic(obs).squeeze(-1)
+
+    def _features(self, obs: torch.Tensor) -> torch.Tensor:
+        """The encoder's features of ``obs``. PPO asks for ``distribution(x)`` and then ``value(x)`` of the same
+        batch: the second call reuses the first's features (and autograd graph) instead of running the encoder
+        twice, when the batch is equal, the grad mode is the same and no encoder weight has changed since."""
+        versions = tuple(p._version for p in self.encoder.parameters())
+        key = (tuple(obs.shape), obs.dtype, torch.is_grad_enabled(), versions)
+        cached = self._features_cache
+        if cached is not None and cached[0] == key and torch.equal(cached[1], obs):
+            features = cached[2]
+            self._features_cache = None  # one reuse: a later call recomputes (its graph may have been freed)
+            return features
+        features = self.encoder(obs)
+        self._features_cache = (key, obs.detach(), features)
+        return features

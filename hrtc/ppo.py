@@ -83,16 +83,17 @@ def ppo_update(
     """K epochs of minibatch updates on the clipped surrogate (Eq. 4-5), value loss and entropy bonus.
 
     Returns the standard diagnostics under CleanRL's names (``losses/approx_kl`` etc., last epoch's means).
-    A minibatch whose loss is not finite is skipped and counted in ``losses/skipped``.
+    A minibatch whose loss is not finite is skipped and counted in ``losses/skipped`` (of ``losses/minibatches``).
     """
     size = batch.obs.shape[0]
     minibatch = max(1, size // cfg.num_minibatches)
-    clipfracs, stats, skipped = [], {}, 0
+    clipfracs, stats, skipped, total = [], {}, 0, 0
     for _ in range(cfg.update_epochs):
         order = torch.randperm(size, generator=generator)
         epoch_stats: dict[str, list[float]] = {"pg": [], "v": [], "ent": [], "kl": [], "old_kl": []}
         for start in range(0, size, minibatch):
             idx = order[start : start + minibatch]
+            total += 1
             dist = policy.distribution(batch.obs[idx])
             logratio = dist.log_prob(batch.samples[idx]) - batch.logprobs[idx]
             ratio = logratio.exp()
@@ -129,4 +130,5 @@ def ppo_update(
         "losses/clipfrac": float(np.mean(clipfracs)) if clipfracs else float("nan"),
         "losses/explained_variance": explained_variance(batch.values.numpy(), batch.returns.numpy()),
         "losses/skipped": float(skipped),
+        "losses/minibatches": float(total),
     }

@@ -10,11 +10,12 @@ from __future__ import annotations
 import functools
 import logging
 import random
+import signal
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, fields
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import gymnasium as gym
 import numpy as np
@@ -22,8 +23,11 @@ import torch
 
 from hrtc.checkpoint import load_checkpoint, save_checkpoint
 from hrtc.composition import BLEND_MODES, ComposedEnv, build_library
-from hrtc.errors import CheckpointError, ConfigError, UnknownNameError
+from hrtc.distributions import BetaDistribution
+from hrtc.encoders import build_encoder, check_encoder_spec
+from hrtc.errors import CheckpointError, ConfigError, HRTCError, SkillError, UnknownNameError
 from hrtc.logging import CsvSink, Sink
+from hrtc.logging.trace import Recorder, RecordingConfig
 from hrtc.normalize import ObsNormalizer, RewardScaler
 from hrtc.policy import ActorCritic
 from hrtc.ppo import Batch, PPOConfig, compute_gae, ppo_update
@@ -63,9 +67,13 @@ class RunConfig:
     checkpoint_every: int = 10_000
     torch_threads: int = 1
     progress: bool = True
+    max_skill_fault_rate: float = 0.05
+    max_skipped_updates: int = 3
     solve_threshold: float | None = None
     env_kwargs: Mapping[str, Any] = field(default_factory=dict)
     ppo: PPOConfig = field(default_factory=PPOConfig)
+    logger: RecordingConfig = field(default_factory=lambda: RecordingConfig(mode="off"))
+    encoder: Mapping[str, Any] | None = None  # an image encoder for pixel tasks (hrtc.encoders), e.g. {name: conv}
 
     def __post_init__(self) -> None:
         if self.algo not in ALGOS:
@@ -76,14 +84,19 @@ class RunConfig:
             raise UnknownNameError("action filter mode", self.action_filter, BLEND_MODES)
         if self.vector not in ("async", "sync"):
             raise UnknownNameError("vector mode", self.vector, ("async", "sync"))
+        if not isinstance(self.seed, int) or isinstance(self.seed, bool) or self.seed < 0:
+            raise ConfigError(f"seed must be a non-negative integer, got {self.seed!r}")
         positive = {"steps": self.steps, "num_envs": self.num_envs, "eval_every": self.eval_every,
                     "eval_episodes": self.eval_episodes, "checkpoint_every": self.checkpoint_every,
                     "ppo.num_steps": self.ppo.num_steps, "ppo.update_epochs": self.ppo.update_epochs,
                     "ppo.num_minibatches": self.ppo.num_minibatches, "torch_threads": self.torch_threads,
-                    "algo.decision_every": self.decision_every}  # fmt: skip
+                    "algo.decision_every": self.decision_every,
+                    "max_skipped_updates": self.max_skipped_updates}  # fmt: skip
         for name, value in positive.items():
             if not isinstance(value, int) or isinstance(value, bool) or value < 1:
                 raise ConfigError(f"{name} must be a positive integer, got {value!r}")
+        if not 0.0 <= self.max_skill_fault_rate <= 1.0:
+            raise ConfigError(f"max_skill_fault_rate must be in [0, 1], got {self.max_skill_fault_rate}")
         if not 0.0 < self.ppo.learning_rate < 1.0:
             raise ConfigError(f"ppo.learning_rate must be in (0, 1), got {self.ppo.learning_rate}")
         for name in ("gamma", "gae_lambda"):
@@ -95,6 +108,8 @@ class RunConfig:
             raise ConfigError(f"algo=hrtc needs skills, and task {self.task!r} declares none")
         if not self.hidden or any(int(h) < 1 for h in self.hidden):
             raise ConfigError(f"hidden must list positive layer widths, got {self.hidden}")
+        if self.encoder is not None:
+            check_encoder_spec(self.encoder)
 
     @classmethod
     def from_mapping(cls, cfg: Mapping[str, Any]) -> RunConfig:
@@ -102,12 +117,13 @@ class RunConfig:
         cfg = dict(cfg)
         task, algo, dist = dict(cfg.pop("task")), dict(cfg.pop("algo")), dict(cfg.pop("dist"))
         ppo_cfg = dict(cfg.pop("ppo", {}) or {})
+        logger = RecordingConfig.from_mapping(cfg.pop("logger", None) or {"mode": "off"})
         ppo_names = {f.name for f in fields(PPOConfig)}
         unknown = set(ppo_cfg) - ppo_names
         if unknown:
             raise ConfigError(f"unknown ppo keys {sorted(unknown)}; valid: {sorted(ppo_names)}")
         top = {f.name for f in fields(cls)} - {"task", "skills", "algo", "dist", "action_filter", "ppo",
-                                                "solve_threshold", "env_kwargs"}  # fmt: skip
+                                                "solve_threshold", "env_kwargs", "logger"}  # fmt: skip
         unknown = set(cfg) - top - {"run_dir", "resume"}
         if unknown:
             raise ConfigError(f"unknown config keys {sorted(unknown)}; valid: {sorted(top)}")
@@ -125,6 +141,7 @@ class RunConfig:
             dist=str(dist.get("name")),
             beta_init_bias=float(dist.get("init_bias", 0.0)),
             ppo=PPOConfig(**ppo_cfg),
+            logger=logger,
             **kwargs,
         )
 
@@ -159,7 +176,9 @@ def to_env_action(u: np.ndarray, space: gym.spaces.Box, dist: str) -> np.ndarray
 def policy_for(cfg: RunConfig, obs_dim: int, space: gym.spaces.Box) -> ActorCritic:
     centre = float(np.mean((space.low + space.high) / 2))
     log_std = float(np.log(np.mean(space.high - space.low) / 4))  # std a quarter of the range
-    return ActorCritic(obs_dim, int(space.shape[0]), cfg.dist, cfg.hidden, centre, log_std, cfg.beta_init_bias)
+    encoder = build_encoder(cfg.encoder, obs_dim) if cfg.encoder is not None else None
+    return ActorCritic(obs_dim, int(space.shape[0]), cfg.dist, cfg.hidden, centre, log_std, cfg.beta_init_bias,
+                       encoder=encoder)  # fmt: skip
 
 
 def normalize_obs(normalizer: ObsNormalizer | None, obs: np.ndarray, update: bool = False) -> np.ndarray:
@@ -168,6 +187,49 @@ def normalize_obs(normalizer: ObsNormalizer | None, obs: np.ndarray, update: boo
 
 
 # --------------------------------------------------------------------------------------------------- evaluation
+class Decision(NamedTuple):
+    """One decision of a fixed policy: its input ``obs`` (as the policy saw it), output ``u``, the task action, and
+    the Beta parameters when it has them."""
+
+    obs: np.ndarray
+    u: np.ndarray
+    action: np.ndarray
+    alpha: np.ndarray | None = None
+    beta: np.ndarray | None = None
+
+
+def run_episodes(
+    env: gym.Env,
+    decide: Callable[[np.ndarray], Decision],
+    seeds: Sequence[int],
+    recorder: Recorder | None = None,
+    render: Callable[[], np.ndarray | None] | None = None,
+    values: Callable[[np.ndarray], np.ndarray] | None = None,
+) -> np.ndarray:
+    """Returns of one episode per seed acting with ``decide``. With a ``recorder`` every decision is traced (weights,
+    alpha/beta, proposals, action, reward, skill diagnostics, and frames from ``render`` when the recorder asks) and
+    handed over when the episode ends, with ``values`` of the traced observations (one batch)."""
+    returns = []
+    for episode, seed in enumerate(seeds):
+        obs, _ = env.reset(seed=int(seed))
+        trace = recorder.begin(episode, int(seed), render) if recorder is not None else None
+        total, done = 0.0, False
+        while not done:
+            decision = decide(obs)
+            obs, reward, terminated, truncated, info = env.step(decision.action)
+            total += float(reward)
+            done = terminated or truncated
+            if trace is not None:
+                trace.add(decision.obs, decision.u, decision.alpha, decision.beta, decision.action, float(reward), info)
+        returns.append(total)
+        if trace is not None and recorder is not None:
+            trace.episode_return = total
+            if values is not None and trace.obs:
+                trace.values = values(np.stack(trace.obs))
+            recorder.end(trace)
+    return np.asarray(returns)
+
+
 @torch.no_grad()
 def evaluate(
     policy: ActorCritic,
@@ -175,23 +237,72 @@ def evaluate(
     env: gym.Env,
     seeds: Sequence[int],
     dist: str,
-    on_step: Callable[[int, int, np.ndarray, dict], None] | None = None,
+    recorder: Recorder | None = None,
+    render: Callable[[], np.ndarray | None] | None = None,
 ) -> np.ndarray:
-    """Returns of one deterministic episode per seed (the distribution's mode: the Beta mean for HRTC)."""
-    returns = []
-    for episode, seed in enumerate(seeds):
-        obs, _ = env.reset(seed=int(seed))
-        total, done, t = 0.0, False, 0
-        while not done:
-            u = policy.distribution(torch.as_tensor(normalize_obs(normalizer, obs[None]))).mode().numpy()[0]
-            obs, reward, terminated, truncated, info = env.step(to_env_action(u, env.action_space, dist))
-            total += float(reward)
-            done = terminated or truncated
-            if on_step is not None:
-                on_step(episode, t, u, info)
-            t += 1
-        returns.append(total)
-    return np.asarray(returns)
+    """Returns of one deterministic episode per seed (the distribution's mode: the Beta mean for HRTC); recorded
+    with the critic's values when a ``recorder`` is given (see :func:`run_episodes`)."""
+
+    def decide(obs: np.ndarray) -> Decision:
+        nobs = normalize_obs(normalizer, obs[None])
+        distribution = policy.distribution(torch.as_tensor(nobs))
+        u = distribution.mode().numpy()[0]
+        alpha, beta = _beta_parameters(distribution)
+        return Decision(nobs[0], u, to_env_action(u, env.action_space, dist), alpha, beta)
+
+    def values(obs: np.ndarray) -> np.ndarray:
+        with torch.no_grad():
+            return policy.value(torch.as_tensor(obs)).numpy()
+
+    return run_episodes(env, decide, seeds, recorder, render, values if recorder is not None else None)
+
+
+def _beta_parameters(distribution: Any) -> tuple[np.ndarray | None, np.ndarray | None]:
+    if isinstance(distribution, BetaDistribution):
+        return distribution.alpha.numpy()[0], distribution.beta.numpy()[0]
+    return None, None
+
+
+def frame_source(env: gym.Env, size: Sequence[int]) -> Callable[[], np.ndarray | None] | None:
+    """A function returning the task's current camera frame (RGB, (H, W, 3) uint8), or None if it cannot render.
+    ``size`` (height, width) applies to tasks that choose their frame size (the MuJoCo tasks)."""
+    base = env.unwrapped
+    if hasattr(base, "render_size"):
+        base.render_size = (int(size[0]), int(size[1]))
+        return base.render
+    if getattr(base, "render_mode", None) == "rgb_array":
+        return base.render
+    return None
+
+
+class LoadedPolicy(NamedTuple):
+    """A saved policy ready to act: the network, its observation normaliser (or None) and the checkpoint's meta."""
+
+    policy: ActorCritic
+    normalizer: ObsNormalizer | None
+    meta: dict[str, Any]
+
+
+def load_policy(path: str | Path, which: str = "policy") -> LoadedPolicy:
+    """Rebuild the actor-critic saved in checkpoint ``path`` (weights only) in evaluation mode."""
+    state = load_checkpoint(path)
+    meta = dict(state["meta"])
+    try:
+        policy = ActorCritic(int(meta["obs_dim"]), int(meta["out_dim"]), str(meta["dist"]),
+                             tuple(int(h) for h in meta["hidden"]))  # fmt: skip
+        policy.load_state_dict(state[which])
+    except (KeyError, RuntimeError, ValueError) as error:
+        raise CheckpointError(f"{path}: cannot rebuild its policy ({_first(error)})") from error
+    policy.eval()
+    normalizer = None
+    if state.get("obs_rms"):
+        normalizer = ObsNormalizer((int(meta["obs_dim"]),))
+        normalizer.rms.load_state_dict(state["obs_rms"])
+    return LoadedPolicy(policy, normalizer, meta)
+
+
+def _first(error: BaseException) -> str:
+    return str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
 
 
 def eval_seeds(seed: int, episodes: int) -> list[int]:
@@ -233,9 +344,30 @@ class Trainer:
         self.best_eval = -np.inf
         self.wall_offset = 0.0  # wall time of the run before a resume, s
         self._start = time.perf_counter()  # reset when train() starts
+        if self.skill_names:  # the skills' first proposals: a wrong action size is an error now, not in a worker
+            self.eval_env.reset(seed=cfg.seed)
+        if resume and not (self.ckpt_dir / "last.pt").exists():
+            log.warning("resume: no checkpoint in %s yet; starting from scratch", self.ckpt_dir)
+            resume = False
         if resume:
             self._restore(self.ckpt_dir / "last.pt")
-        self.sinks: list[Sink] = [CsvSink(self.run_dir, {"train": TRAIN_COLUMNS, "eval": EVAL_COLUMNS}, resume), *sinks]
+        columns = {"train": (*TRAIN_COLUMNS, *(f"faults/{name}" for name in self.skill_names)), "eval": EVAL_COLUMNS}
+        # A resumed run continues its CSVs from the checkpoint's step: rows written after it (the work the crash
+        # lost, to be redone) are dropped, so no row is duplicated.
+        csv_sink = CsvSink(self.run_dir, columns, append=resume, keep_until=self.global_step if resume else None)
+        self.sinks: list[Sink] = [csv_sink, *sinks]
+        self.recorder, self.render = None, None
+        if cfg.logger.mode != "off":
+            from hrtc.logging.rerun_sink import RerunSink
+
+            task_action_dim = int(getattr(self.eval_env, "action_dim", space.shape[0]))
+            names = self.skill_names or tuple(f"a{i}" for i in range(space.shape[0]))
+            tree = library_text(cfg.task, cfg.skills, cfg.algo, cfg.dist, cfg.decision_every, cfg.action_filter)
+            self.recorder = RerunSink(self.run_dir, cfg.logger, names, task_action_dim, tree, resume)
+            self.recorder.updates = self.update
+            self.sinks.append(self.recorder)
+            if cfg.logger.frames:
+                self.render = frame_source(self.eval_env, cfg.logger.frame_size)
 
     # ------------------------------------------------------------------ checkpoints
     def state_dict(self) -> dict[str, Any]:
@@ -301,9 +433,12 @@ class Trainer:
         log.info("resumed from %s at step %d", path, self.global_step)
 
     # ------------------------------------------------------------------ evaluation
-    def evaluate(self) -> float:
-        returns = evaluate(self.policy, self.normalizer, self.eval_env,
-                           eval_seeds(self.cfg.seed, self.cfg.eval_episodes), self.cfg.dist)  # fmt: skip
+    def evaluate(self, last: bool = False) -> float:
+        if self.recorder is not None:
+            self.recorder.start_evaluation(self.global_step, last)
+        seeds = eval_seeds(self.cfg.seed, self.cfg.eval_episodes)
+        policy, normalizer = self.policy, self.normalizer
+        returns = evaluate(policy, normalizer, self.eval_env, seeds, self.cfg.dist, self.recorder, self.render)
         mean = float(returns.mean())
         self._write("eval", {"episode_reward": mean, "episode_reward_std": float(returns.std()),
                              "episodes": len(returns), "train_episodes": self.episodes,
@@ -316,6 +451,18 @@ class Trainer:
     def _write(self, stream: str, metrics: Mapping[str, float]) -> None:
         for sink in self.sinks:
             sink.write(stream, self.global_step, metrics)
+
+    def _check_health(self, faults: np.ndarray, calls: np.ndarray, skipped_in_a_row: int) -> None:
+        """Stop the run (after saving it) when a skill faults too often or the loss stays non-finite."""
+        for name, f, c in zip(self.skill_names, faults, calls, strict=True):
+            if c >= 200 and f / c > self.cfg.max_skill_fault_rate:
+                self.save()
+                raise SkillError(f"skill {name!r} faulted in {f:.0f} of {c:.0f} calls ({f / c:.1%}, more than "
+                                 f"max_skill_fault_rate {self.cfg.max_skill_fault_rate:.1%}); the run is saved at "
+                                 f"step {self.global_step}, see the warnings above for the faults")  # fmt: skip
+        if skipped_in_a_row >= self.cfg.max_skipped_updates:
+            raise HRTCError(f"the PPO loss was not finite in {skipped_in_a_row} updates in a row (every minibatch "
+                            f"skipped); stopping at step {self.global_step}, last checkpoint kept")  # fmt: skip
 
     # ------------------------------------------------------------------ the loop
     def _vector_env(self) -> gym.vector.VectorEnv:
@@ -343,11 +490,17 @@ class Trainer:
         buf_logp, buf_rew, buf_done, buf_val = (np.zeros((t_len, n), np.float32) for _ in range(4))
         ep_return = np.zeros(n)
         recent_returns: list[float] = []
+        faults = np.zeros((n, len(self.skill_names)))  # lifetime faults and calls of each env's skills
+        calls = np.zeros((n, len(self.skill_names)))
+        skipped_in_a_row = 0
+        committed = (self.global_step, self.episodes)  # the state at the last finished update
         self._start = time.perf_counter()
         next_eval = (self.global_step // cfg.eval_every + 1) * cfg.eval_every
         next_ckpt = (self.global_step // cfg.checkpoint_every + 1) * cfg.checkpoint_every
         bar = _progress(cfg.steps, self.global_step, cfg.progress, f"{cfg.algo}-{cfg.dist} {cfg.task}")
+        sample_every = cfg.logger.train_sample_every
         last_eval = float("nan")
+        previous_sigterm = signal.signal(signal.SIGTERM, _interrupt)  # `kill` saves a checkpoint, as Ctrl-C does
         try:
             # Training envs: seed + i on the first reset of this (or a resumed) run, continuing their own RNG after.
             obs, _ = vec.reset(seed=[cfg.seed * 1_000 + self.update * n + i for i in range(n)])
@@ -368,9 +521,16 @@ class Trainer:
                         buf_val[t] = self.policy.value(tobs).numpy()
                     u_np = u.numpy()
                     buf_obs[t], buf_u[t] = nobs, u_np
-                    obs, reward, terminated, truncated, info = vec.step(to_env_action(u_np, space, cfg.dist))
+                    env_action = to_env_action(u_np, space, cfg.dist)
+                    if self.recorder is not None and sample_every and t % sample_every == 0:
+                        alpha, beta = _beta_parameters(dist)
+                        self.recorder.sample(self.global_step, env_action[0], alpha, beta)
+                    obs, reward, terminated, truncated, info = vec.step(env_action)
                     done = terminated | truncated
                     ep_return += reward
+                    if "skill_faults" in info:
+                        mask = info.get("_skill_faults", np.ones(n, bool))
+                        faults[mask], calls[mask] = info["skill_faults"][mask], info["skill_calls"][mask]
                     for i in np.flatnonzero(done):
                         recent_returns.append(float(ep_return[i]))
                         self.episodes += 1
@@ -399,6 +559,9 @@ class Trainer:
                 tu = time.perf_counter()
                 stats = ppo_update(self.policy, self.optimizer, batch, ppo, self.generator)
                 self.update += 1
+                committed = (self.global_step, self.episodes)
+                all_skipped = stats["losses/skipped"] == stats["losses/minibatches"]
+                skipped_in_a_row = skipped_in_a_row + 1 if all_skipped else 0
                 elapsed = time.perf_counter() - tic
                 train_return = float(np.mean(recent_returns)) if recent_returns else float("nan")
                 recent_returns.clear()
@@ -410,9 +573,12 @@ class Trainer:
                     "charts/update_seconds": time.perf_counter() - tu,
                     "charts/rollout_SPS": env_steps_per_update / rollout_seconds,
                 })  # fmt: skip
+                for k, name in enumerate(self.skill_names):
+                    stats[f"faults/{name}"] = float(faults[:, k].sum())
                 self._write("train", stats)
+                self._check_health(faults.sum(0), calls.sum(0), skipped_in_a_row)
                 if self.global_step >= next_eval or self.update == num_updates:
-                    last_eval = self.evaluate()
+                    last_eval = self.evaluate(last=self.update == num_updates)
                     next_eval = (self.global_step // cfg.eval_every + 1) * cfg.eval_every
                 if self.global_step >= next_ckpt or self.update == num_updates:
                     self.save()
@@ -422,10 +588,14 @@ class Trainer:
                     bar.set_postfix(train_return=f"{train_return:.0f}", eval=f"{last_eval:.0f}",
                                     SPS=f"{env_steps_per_update / elapsed:.0f}")  # fmt: skip
         except KeyboardInterrupt:
+            # Save the state of the last finished update: the interrupted rollout is redone on resume, so the
+            # resumed run ends on the same step count as an uninterrupted one.
+            self.global_step, self.episodes = committed
             log.warning("interrupted: saving a checkpoint at step %d", self.global_step)
             self.save()
             raise
         finally:
+            signal.signal(signal.SIGTERM, previous_sigterm)
             if bar is not None:
                 bar.close()
             vec.close()
@@ -434,6 +604,24 @@ class Trainer:
         wall = time.perf_counter() - self._start
         return {"final_eval": last_eval, "best_eval": float(self.best_eval), "steps": self.global_step,
                 "wall_seconds": wall}  # fmt: skip
+
+
+def _interrupt(signum: int, frame: Any) -> None:
+    raise KeyboardInterrupt(f"signal {signum}")
+
+
+def library_text(task: str, skills: Mapping[str, Any], algo: str = "hrtc", dist: str = "beta",
+                 decision_every: int = 1, action_filter: str = "sum") -> str:  # fmt: skip
+    """The task's skill library as markdown: one line per skill with its class, state filter and rate."""
+    if algo != "hrtc":
+        return f"# {task}\n\nplain PPO on the task's raw actions ({dist})"
+    lines = [f"# {task}: {len(skills)} skills, weights by a {dist} meta-policy every {decision_every} env step(s), "
+             f"action filter `{action_filter}`", ""]  # fmt: skip
+    for name, spec in skills.items():
+        target = (spec.get("skill") or {}).get("_target_", "?")
+        state = ", ".join(spec.get("state") or []) or "its default state keys"
+        lines.append(f"- **{name}**: `{target}`, every {spec.get('every', 1)} env step(s), reads {state}")
+    return "\n".join(lines)
 
 
 def _plain(value: Any) -> Any:

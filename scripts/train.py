@@ -14,11 +14,11 @@ from pathlib import Path
 
 import hydra
 from hydra.core.hydra_config import HydraConfig
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a clone without installing
 
-from hrtc.cli import check_overrides, fail  # noqa: E402
+from hrtc.cli import check_overrides, fail, start_run  # noqa: E402
 from hrtc.errors import HRTCError  # noqa: E402
 
 log = logging.getLogger("hrtc.train")
@@ -26,18 +26,15 @@ log = logging.getLogger("hrtc.train")
 
 @hydra.main(version_base=None, config_path="pkg://hrtc.conf", config_name="config")
 def main(cfg: DictConfig) -> None:
-    from hrtc.trainer import RunConfig, Trainer
-
     run_dir = Path(HydraConfig.get().runtime.output_dir)
-    try:
-        container = OmegaConf.to_container(cfg, resolve=True)
-        run_cfg = RunConfig.from_mapping(container)
-        (run_dir / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
-        trainer = Trainer(run_cfg, run_dir, resume=bool(cfg.get("resume", False)))
-    except HRTCError as error:
-        fail(str(error))
+    trainer = start_run(cfg, run_dir)
     log.info("run directory: %s", run_dir)
-    result = trainer.train()
+    try:
+        result = trainer.train()
+    except HRTCError as error:  # a skill faulting too often, a loss that stays NaN: the run is saved, say why
+        fail(str(error), status=1)
+    except KeyboardInterrupt:
+        fail(f"interrupted; checkpoint saved: resume with hydra.run.dir={run_dir} resume=true", status=130)
     print(
         f"done: {result['steps']} steps in {result['wall_seconds']:.0f} s; final eval {result['final_eval']:.1f}, "
         f"best {result['best_eval']:.1f}; run directory {run_dir}"

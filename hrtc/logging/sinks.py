@@ -19,16 +19,20 @@ class Sink(Protocol):
 class CsvSink:
     """One CSV per stream in ``run_dir``, columns fixed by ``columns[stream]``; each row is flushed when written.
 
-    With ``append=True`` existing files are continued (their header is kept), for a resumed run.
+    With ``append=True`` existing files are continued (their header is kept), for a resumed run; with ``keep_until``
+    their rows of a later step (and a last line cut short by a crash) are dropped first.
     """
 
-    def __init__(self, run_dir: str | Path, columns: Mapping[str, Sequence[str]], append: bool = False) -> None:
+    def __init__(self, run_dir: str | Path, columns: Mapping[str, Sequence[str]], append: bool = False,
+                 keep_until: int | None = None) -> None:  # fmt: skip
         self.run_dir = Path(run_dir)
         self.columns = {stream: ["step", *cols] for stream, cols in columns.items()}
         self._files: dict[str, IO[str]] = {}
         self._writers: dict[str, csv.DictWriter] = {}
         for stream, cols in self.columns.items():
             path = self.run_dir / f"{stream}.csv"
+            if append and keep_until is not None and path.exists():
+                truncate_rows(path, keep_until)
             existing = append and path.exists() and path.stat().st_size > 0
             handle = open(path, "a" if existing else "w", newline="")
             writer = csv.DictWriter(handle, fieldnames=cols, extrasaction="ignore")
@@ -48,3 +52,30 @@ class CsvSink:
         for handle in self._files.values():
             handle.close()
         self._files.clear()
+
+
+def truncate_rows(path: Path, keep_until: int) -> int:
+    """Rewrite CSV ``path`` (first column ``step``) without rows after step ``keep_until`` or an unfinished last
+    line, atomically. Returns the number of lines dropped."""
+    import os
+
+    lines = path.read_text().splitlines(keepends=True)
+    complete = [line for line in lines if line.endswith("\n")]  # only the last line can be cut short by a crash
+    header, rows = complete[:1], complete[1:]
+    kept = [row for row in rows if _step(row) is not None and _step(row) <= keep_until]  # type: ignore[operator]
+    dropped = len(lines) - len(header) - len(kept)
+    if dropped:
+        tmp = path.with_suffix(".csv.tmp")
+        with open(tmp, "w") as handle:
+            handle.writelines(header + kept)
+            handle.flush()
+            os.fsync(handle.fileno())
+        os.replace(tmp, path)
+    return dropped
+
+
+def _step(row: str) -> float | None:
+    try:
+        return float(row.split(",", 1)[0])
+    except ValueError:
+        return None

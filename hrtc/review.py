@@ -1,0 +1,167 @@
+"""Offline review of a run's skill activations, from its recording alone.
+
+``load(path)`` reads a run directory's recording segments (or one ``.rrd``) back with rerun-sdk's reader;
+``summarize`` gives, per evaluation episode, each skill's mean weight, its share of decisions as the dominant skill
+and its mean alpha + beta; ``plot_activations`` draws the weights over time per episode, with the return.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from hrtc.errors import HRTCError
+from hrtc.logging.trace import weight_summary
+
+
+@dataclass(frozen=True)
+class Review:
+    """A recording's evaluation episodes.
+
+    ``episodes``: one row per episode (``episode``, ``return``, ``length``, ``global_step``, ``seed``); ``steps``: one
+    row per decision (``episode``, ``env_step``, ``weights`` (K,), ``alpha``/``beta`` (K,) or NaN); ``skill_names``.
+    """
+
+    episodes: pd.DataFrame
+    steps: pd.DataFrame
+    skill_names: tuple[str, ...]
+    paths: tuple[Path, ...]
+
+
+def recording_paths(path: str | Path) -> list[Path]:
+    """The ``.rrd`` files of ``path``: itself if it is a file, else the run directory's segments in order."""
+    from hrtc.logging.rerun_sink import segment_paths
+
+    path = Path(path)
+    if path.is_file():
+        return [path]
+    if not path.is_dir():
+        raise HRTCError(f"{path} is neither a run directory nor a .rrd file")
+    paths = segment_paths(path)
+    if not paths:
+        raise HRTCError(f"no recording*.rrd in {path} (was it run with logger.mode=off?)")
+    return paths
+
+
+def load(path: str | Path) -> Review:
+    """Read the evaluation episodes of a run directory (all its segments) or of one ``.rrd`` file."""
+    from hrtc.logging.rerun_sink import read_recording
+
+    paths = recording_paths(path)
+    try:
+        steps = read_recording(paths, contents="/meta/**", index="env_step")
+        episodes = read_recording(paths, contents="/eval/episode/**", index="episode")
+    except (OSError, RuntimeError, ValueError) as error:
+        raise HRTCError(f"cannot read {', '.join(map(str, paths))}: {error}") from error
+    if episodes.empty or steps.empty or "/meta/weights" not in steps:
+        raise HRTCError(f"{path} holds no finished evaluation episode yet")
+    names_column = steps.get("/meta/weights:SeriesLines:names")
+    names = tuple(next((list(v) for v in names_column if v is not None), [])) if names_column is not None else ()
+    steps = steps[steps["/meta/weights"].notna()]
+    table = pd.DataFrame({
+        "episode": steps["episode"].astype(int).to_numpy(),
+        "env_step": steps["env_step"].astype(int).to_numpy(),
+        "weights": [np.asarray(w, dtype=np.float64) for w in steps["/meta/weights"]],
+        "alpha": _cells(steps, "/meta/alpha"),
+        "beta": _cells(steps, "/meta/beta"),
+    })  # fmt: skip
+    episode_table = pd.DataFrame({"episode": episodes["episode"].astype(int).to_numpy()})
+    for key in ("return", "length", "global_step", "seed"):
+        column = episodes.get(f"/eval/episode/{key}")
+        cells = column if column is not None else [None] * len(episode_table)
+        episode_table[key] = [float(v[0]) if v is not None else np.nan for v in cells]
+    # A resumed run may have re-run an episode index; the later segment's rows win.
+    episode_table = episode_table.drop_duplicates("episode", keep="last").sort_values("episode")
+    table = table.drop_duplicates(["episode", "env_step"], keep="last")
+    table = table[table["episode"].isin(episode_table["episode"])].sort_values(["episode", "env_step"])
+    if not names:
+        names = tuple(f"w{k}" for k in range(len(table["weights"].iloc[0])))
+    return Review(episode_table.reset_index(drop=True), table.reset_index(drop=True), names, tuple(paths))
+
+
+def _cells(frame: pd.DataFrame, column: str) -> list:
+    if column not in frame:
+        return [None] * len(frame)
+    return [np.asarray(v, dtype=np.float64) if v is not None else None for v in frame[column]]
+
+
+def summarize(review: Review) -> pd.DataFrame:
+    """One row per episode: ``episode``, ``global_step``, ``return``, and per skill ``<name>/mean_weight``,
+    ``<name>/dominant_share``, ``<name>/mean_alpha_plus_beta`` (see :func:`hrtc.logging.trace.weight_summary`)."""
+    rows = []
+    for _, episode in review.episodes.iterrows():
+        part = review.steps[review.steps["episode"] == episode["episode"]]
+        if part.empty:
+            continue
+        weights = np.stack(part["weights"].to_list())
+        has_beta = part["alpha"].iloc[0] is not None
+        alpha = np.stack(part["alpha"].to_list()) if has_beta else None
+        beta = np.stack(part["beta"].to_list()) if has_beta else None
+        row = {"episode": int(episode["episode"]), "global_step": episode["global_step"], "return": episode["return"]}
+        for name, stats in weight_summary(weights, alpha, beta, review.skill_names).items():
+            row.update({f"{name}/{key}": value for key, value in stats.items()})
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def format_summary(summary: pd.DataFrame, skill_names: tuple[str, ...]) -> str:
+    """The summary as a text table: per skill ``mean weight / dominant share / mean alpha+beta``."""
+    header = f"{'episode':>7} {'step':>8} {'return':>8}  " + "  ".join(f"{n[:22]:>22}" for n in skill_names)
+    lines = [header, f"{'':>7} {'':>8} {'':>8}  " + "  ".join(f"{'w / dom / a+b':>22}" for _ in skill_names)]
+    for _, row in summary.iterrows():
+        cells = []
+        for name in skill_names:
+            confidence = row[f"{name}/mean_alpha_plus_beta"]
+            conf = f"{confidence:6.1f}" if np.isfinite(confidence) else "     -"
+            cells.append(f"{row[f'{name}/mean_weight']:5.2f} / {row[f'{name}/dominant_share']:4.0%} / {conf}")
+        lines.append(f"{int(row['episode']):>7} {row['global_step']:>8.0f} {row['return']:>8.1f}  "
+                     + "  ".join(f"{c:>22}" for c in cells))  # fmt: skip
+    return "\n".join(lines)
+
+
+def pick_episodes(review: Review, max_panels: int = 6) -> list[int]:
+    """Episodes worth a panel: the first, the best, the last, and evenly spaced ones between."""
+    episodes = review.episodes["episode"].to_list()
+    if len(episodes) <= max_panels:
+        return episodes
+    best = int(review.episodes.loc[review.episodes["return"].idxmax(), "episode"])
+    chosen = {episodes[0], episodes[-1], best}
+    for index in np.linspace(0, len(episodes) - 1, max_panels).round().astype(int):
+        if len(chosen) >= max_panels:
+            break
+        chosen.add(episodes[index])
+    return sorted(chosen)
+
+
+def plot_activations(review: Review, path: str | Path, max_panels: int = 6) -> Path:
+    """``activations.png``: per chosen episode, each skill's weight against env steps, titled with its return."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    chosen = pick_episodes(review, max_panels)
+    fig, axes = plt.subplots(len(chosen), 1, figsize=(10, 2.2 * len(chosen) + 0.6), sharex=True, squeeze=False)
+    info = review.episodes.set_index("episode")
+    for ax, episode in zip(axes[:, 0], chosen, strict=True):
+        part = review.steps[review.steps["episode"] == episode]
+        weights = np.stack(part["weights"].to_list())
+        x = part["env_step"].to_numpy() - part["env_step"].min()
+        for k, name in enumerate(review.skill_names):
+            ax.plot(x, weights[:, k], label=name, lw=1.2)
+        row = info.loc[episode]
+        ax.set_title(f"episode {episode} (policy at step {row['global_step']:.0f}): return {row['return']:.1f}",
+                     fontsize=9, loc="left")  # fmt: skip
+        ax.set_ylim(-0.02, 1.02)
+        ax.set_ylabel("weight")
+        ax.grid(alpha=0.3)
+    axes[0, 0].legend(loc="upper right", ncol=len(review.skill_names), fontsize=8)
+    axes[-1, 0].set_xlabel("env steps into the episode")
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

@@ -1,0 +1,105 @@
+"""Run one skill of a task alone (weight 1, the others 0), or a fixed blend, and record it.
+
+    python scripts/eval_skill.py task=cartpole_swingup skill=<name>|list [episodes=3] [seed=1]
+        [weights=[0.5,0.5,0,0]] [out=DIR] [logger=save|off] [frames=true] [frame_every=5]
+
+``skill=list`` lists the task's skills. ``weights=[...]`` (one per skill, in the task's order) runs a fixed blend
+instead of one skill. Prints the returns and, per skill with a non-zero weight, its solver statistics (median and
+99th-percentile solve time, failed solves, faults); writes DIR/recording.rrd (default: runs/skills/<task>/<name>).
+The skills act at every env step, as in training with the task's rates (``every``).
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a clone without installing
+
+from hrtc.cli import fail, parse_options  # noqa: E402
+from hrtc.errors import HRTCError  # noqa: E402
+
+DEFAULTS = {"task": None, "skill": None, "episodes": 3, "seed": 1, "weights": None, "out": None, "logger": "save",
+            "frames": True, "frame_every": 5}  # fmt: skip
+
+
+def main(argv: list[str]) -> None:
+    opts = parse_options(argv, DEFAULTS, __doc__ or "")
+    if not opts["task"]:
+        fail("task=<name> is required")
+    try:
+        print(run(opts))
+    except HRTCError as error:
+        fail(str(error))
+
+
+def run(opts: dict) -> str:
+    import numpy as np
+
+    from hrtc.cli import task_config
+    from hrtc.errors import ConfigError, UnknownNameError
+    from hrtc.logging.trace import RecordingConfig, TraceCollector, skill_statistics
+    from hrtc.trainer import Decision, eval_seeds, frame_source, library_text, make_env, run_episodes
+
+    task = task_config(str(opts["task"]))
+    skills = task.get("skills") or {}
+    names = tuple(skills)
+    if not names:
+        raise ConfigError(f"task {task['name']!r} declares no skills")
+    if opts["skill"] == "list":
+        return "\n".join(f"{n:<12} {skills[n]['skill'].get('_target_')}  every={skills[n].get('every', 1)}"
+                         for n in names)  # fmt: skip
+    if opts["weights"] is not None:
+        weights = np.asarray(opts["weights"], dtype=np.float64).reshape(-1)
+        if weights.shape != (len(names),) or not np.all(np.isfinite(weights)):
+            raise ConfigError(f"weights must be {len(names)} finite numbers, one per skill {list(names)}")
+        label = "blend-" + "-".join(f"{w:g}" for w in weights)
+    elif opts["skill"] is None:
+        raise ConfigError(f"skill=<name> or weights=[...] is required; the skills are {', '.join(names)}")
+    elif opts["skill"] in names:
+        weights = np.array([1.0 if n == opts["skill"] else 0.0 for n in names])
+        label = str(opts["skill"])
+    else:
+        raise UnknownNameError("skill", str(opts["skill"]), (*names, "list"))
+
+    env = make_env(task["name"], "hrtc", skills, "sum", task.get("env_kwargs"), 1)
+    episodes, seed = int(opts["episodes"]), int(opts["seed"])
+    out = Path(opts["out"]) if opts["out"] else Path("runs") / "skills" / task["name"] / label
+    recorder, render = None, None
+    if opts["logger"] != "off":
+        from hrtc.logging.rerun_sink import RerunSink
+
+        cfg = RecordingConfig(
+            mode=str(opts["logger"]),
+            frames=bool(opts["frames"]),
+            frame_every=int(opts["frame_every"]),
+            frame_episodes=episodes,
+            frame_evals_every=1,
+        )
+        recorder = RerunSink(out, cfg, names, int(env.action_dim), library_text(task["name"], skills))  # fmt: skip
+        recorder.start_evaluation(0, last=True)
+        render = frame_source(env, cfg.frame_size) if cfg.frames else None
+    collector = TraceCollector(recorder)
+    action = weights.astype(np.float32)
+    try:
+        returns = run_episodes(env, lambda obs: Decision(obs, weights, action), eval_seeds(seed, episodes),
+                               collector, render)  # fmt: skip
+    finally:
+        env.close()
+        if recorder is not None:
+            recorder.close()
+    lines = [f"{task['name']}: {label} (weights {dict(zip(names, weights.round(3).tolist(), strict=True))})",
+             f"returns over {episodes} episodes: {returns.mean():.1f} ± {returns.std():.1f} "
+             f"(min {returns.min():.1f}, max {returns.max():.1f})",
+             "skill        steps  median ms   p99 ms  failures  faults"]  # fmt: skip
+    for name, s in skill_statistics(collector.traces).items():
+        if weights[names.index(name)] != 0.0:
+            lines.append(f"{name:<10} {s['decisions']:>7.0f}  {s['median_ms']:>9.3f}  {s['p99_ms']:>7.3f}  "
+                         f"{s['failures']:>8.0f}  {s['faults']:>6.0f}")  # fmt: skip
+    if recorder is not None:
+        lines.append(f"recording: {recorder.path}")
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])

@@ -1,0 +1,217 @@
+"""The Rerun recording, read back with rerun-sdk's own reader: what was logged is what is found, and the offline
+review reproduces the summary from the recording alone."""
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from omegaconf import OmegaConf
+
+from hrtc import review
+from hrtc.errors import ConfigError, HRTCError, UnknownNameError
+from hrtc.logging.rerun_sink import RerunSink, read_recording, segment_paths
+from hrtc.logging.trace import RecordingConfig, TraceCollector, weight_summary
+from hrtc.ppo import PPOConfig
+from hrtc.trainer import ROOT_CONF, RunConfig, Trainer, eval_seeds, evaluate
+
+ROOT = Path(__file__).resolve().parents[2]
+SKILLS = OmegaConf.to_container(OmegaConf.load(ROOT_CONF / "task" / "cartpole_swingup.yaml"))["task"]["skills"]
+NAMES = list(SKILLS)
+EPISODE_STEPS = 100  # env_kwargs time_limit 1 s of 0.01 s steps
+LOGGER = RecordingConfig(mode="save", frame_every=20, frame_size=(48, 64), frame_episodes=1, frame_evals_every=2,
+                         train_sample_every=10)  # fmt: skip
+
+
+def _cfg(steps: int, **kwargs) -> RunConfig:
+    base = dict(task="cartpole_swingup", skills=SKILLS, seed=5, steps=steps, num_envs=2, vector="sync",
+                eval_every=500, eval_episodes=2, progress=False, decision_every=5, env_kwargs={"time_limit": 1.0},
+                ppo=PPOConfig(num_steps=50, learning_rate=1e-3), logger=LOGGER)  # fmt: skip
+    return RunConfig(**{**base, **kwargs})
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory):
+    run_dir = tmp_path_factory.mktemp("run")
+    trainer = Trainer(_cfg(1000), run_dir)
+    tee = TraceCollector(trainer.recorder)  # keeps what the evaluations hand over and passes it on to the recording
+    trainer.recorder = tee
+    trainer.train()
+    return run_dir, tee.traces
+
+
+def test_recording_holds_every_evaluation_step_with_its_names_and_ranges(trained):
+    run_dir, traces = trained
+    (path,) = segment_paths(run_dir)
+    steps = read_recording([path], contents="/meta/**", index="env_step")
+    evaluations = len(pd.read_csv(run_dir / "eval.csv"))  # at 0, 500, 1000
+    decisions = evaluations * 2 * EPISODE_STEPS // 5
+    assert len(traces) == evaluations * 2
+    assert len(steps) == decisions
+    assert list(steps["/meta/weights:SeriesLines:names"].dropna().iloc[0]) == NAMES
+    weights = np.stack(steps["/meta/weights"])
+    alpha, beta = np.stack(steps["/meta/alpha"]), np.stack(steps["/meta/beta"])
+    assert weights.shape == (decisions, len(NAMES))
+    assert np.all((weights >= 0) & (weights <= 1))
+    assert np.all(alpha >= 1) and np.all(beta >= 1)
+    np.testing.assert_allclose(np.stack(steps["/meta/confidence"]), alpha + beta, rtol=1e-12)
+    # Exactly the values the evaluations produced, in order.
+    np.testing.assert_array_equal(weights, np.concatenate([np.asarray(t.weights) for t in traces]))
+    np.testing.assert_array_equal(alpha, np.concatenate([np.asarray(t.alpha) for t in traces]))
+    # The Beta mean is what acted.
+    np.testing.assert_allclose(weights, alpha / (alpha + beta), rtol=1e-6)
+
+
+def test_recording_holds_proposals_actions_rewards_values_diagnostics_and_frames(trained):
+    run_dir, traces = trained
+    paths = segment_paths(run_dir)
+    table = read_recording(paths, contents="/**", index="env_step")
+    rows = table[table["/reward"].notna()]
+    rewards = np.concatenate([t.reward for t in traces])
+    np.testing.assert_array_equal(np.stack(rows["/reward"])[:, 0], rewards)
+    values = np.concatenate([t.values for t in traces])
+    np.testing.assert_allclose(np.stack(rows["/value"])[:, 0], values, rtol=1e-6)
+    proposals = np.concatenate([np.asarray(t.proposals) for t in traces])  # (T, K, A)
+    for k, name in enumerate(NAMES):
+        np.testing.assert_array_equal(np.stack(rows[f"/skills/{name}/action"]), proposals[:, k, :])
+    blended = np.stack(rows["/action/blended"])
+    assert np.all(np.abs(blended) <= 1.0)
+    np.testing.assert_array_equal(blended, np.concatenate([np.asarray(t.action) for t in traces]))
+    # Solver diagnostics of the MPC skills, and each skill's measured compute time.
+    for column in ("/skills/balance/status", "/skills/tracker/solve_ms", "/skills/hold/compute_ms"):
+        assert rows[column].notna().all(), column
+    # Frames: first episode of every 2nd evaluation (and the last), one every 20 env steps.
+    frames = read_recording(paths, contents="/world/**", index="env_step")
+    frames = frames[frames.filter(like="/world/camera").notna().any(axis=1)]
+    with_frames = [t for t in traces if t.frames]
+    assert len(with_frames) == 2 and all(len(t.frames) == EPISODE_STEPS // 20 for t in with_frames)
+    assert len(frames) == sum(len(t.frames) for t in with_frames)
+    assert with_frames[0].frames[0][1].shape == (48, 64, 3)
+
+
+def test_recording_holds_training_metrics_samples_and_the_tree(trained):
+    run_dir, _ = trained
+    paths = segment_paths(run_dir)
+    train = pd.read_csv(run_dir / "train.csv")
+    updates = read_recording(paths, contents="/train/**", index="update")
+    assert list(updates["update"]) == list(range(1, len(train) + 1))
+    np.testing.assert_allclose(np.stack(updates["/train/losses/approx_kl"])[:, 0], train["losses/approx_kl"])
+    samples = read_recording(paths, contents="/meta/weights", index="global_step").dropna(subset=["global_step"])
+    assert len(samples) == len(train) * 50 // 10  # every 10th of 50 decisions per rollout
+    tree = read_recording(paths, contents="/tree", index=None)
+    text = str(tree["/tree:TextDocument:text"].iloc[0])
+    assert all(name in text for name in NAMES)
+
+
+def test_review_reproduces_the_summary_from_the_recording_alone(trained, tmp_path):
+    run_dir, traces = trained
+    data = review.load(run_dir)
+    summary = review.summarize(data)
+    assert data.skill_names == tuple(NAMES)
+    assert len(summary) == len(traces)
+    for (_, row), trace in zip(summary.iterrows(), traces, strict=True):
+        expected = weight_summary(np.asarray(trace.weights), np.asarray(trace.alpha), np.asarray(trace.beta), NAMES)
+        for name, stats in expected.items():
+            for key, value in stats.items():
+                assert row[f"{name}/{key}"] == pytest.approx(value, rel=1e-9), (name, key)
+        assert row["return"] == pytest.approx(trace.episode_return)
+    evals = pd.read_csv(run_dir / "eval.csv")
+    np.testing.assert_allclose(summary.groupby("global_step")["return"].mean(), evals["episode_reward"], rtol=1e-6)
+    out = review.plot_activations(data, tmp_path / "activations.png")
+    assert out.stat().st_size > 10_000
+    result = subprocess.run([sys.executable, str(ROOT / "scripts" / "review.py"), str(run_dir), "--out",
+                             str(tmp_path / "cli.png")], capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    assert f"{len(traces)} evaluation episodes" in result.stdout
+    assert (tmp_path / "cli.png").exists()
+
+
+def test_resume_writes_a_new_segment_and_review_reads_both(tmp_path):
+    Trainer(_cfg(500, eval_episodes=1), tmp_path).train()
+    Trainer(_cfg(1000, eval_episodes=1), tmp_path, resume=True).train()
+    assert [p.name for p in segment_paths(tmp_path)] == ["recording.rrd", "recording.1.rrd"]
+    data = review.load(tmp_path)
+    assert list(data.episodes["episode"]) == [0, 1, 2]  # evaluations at 0 and 500, then (resumed) at 1000
+    assert list(data.episodes["global_step"]) == [0, 500, 1000]
+    assert data.steps["env_step"].is_monotonic_increasing
+
+
+def test_review_reads_a_run_killed_mid_training(tmp_path):
+    run_dir = tmp_path / "killed"
+    cmd = [sys.executable, str(ROOT / "scripts" / "train.py"), "task=cartpole_swingup", "steps=200000",
+           "eval_every=500", "eval_episodes=1", "progress=false", "vector=sync", "+task.env_kwargs.time_limit=1.0",
+           "logger.frames=false", f"hydra.run.dir={run_dir}"]  # fmt: skip
+    process = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    try:
+        deadline = time.time() + 120
+        while time.time() < deadline:
+            eval_csv = run_dir / "eval.csv"
+            if eval_csv.exists() and len(eval_csv.read_text().splitlines()) >= 4:  # header + 3 evaluations
+                break
+            time.sleep(0.5)
+        else:
+            pytest.fail("the training run wrote no evaluations within 120 s")
+    finally:
+        os.killpg(process.pid, signal.SIGKILL)
+        process.wait()
+    data = review.load(run_dir)
+    assert len(data.episodes) >= 3
+    summary = review.summarize(data)
+    assert np.isfinite(summary.filter(like="mean_weight").to_numpy()).all()
+
+
+def test_eval_skill_records_one_skill_alone(tmp_path):
+    sys.path.insert(0, str(ROOT / "scripts"))
+    import eval_skill
+
+    text = eval_skill.run({**eval_skill.DEFAULTS, "task": "cartpole_swingup", "skill": "balance", "episodes": 1,
+                           "out": str(tmp_path), "frames": False})  # fmt: skip
+    assert "balance" in text and "median ms" in text
+    data = review.load(tmp_path)
+    weights = np.stack(data.steps["weights"])
+    assert weights.shape == (1000, 4)
+    np.testing.assert_array_equal(weights, np.tile([0.0, 1.0, 0.0, 0.0], (1000, 1)))
+    assert data.steps["alpha"].isna().all()  # a fixed blend has no Beta parameters
+
+
+def test_evaluation_recorder_does_not_change_returns(trained):
+    run_dir, _ = trained
+    from hrtc.trainer import load_policy, make_env
+
+    policy, normalizer, meta = load_policy(run_dir / "checkpoints" / "last.pt")
+    env = make_env(meta["task"], meta["algo"], meta["skills_cfg"], meta["action_filter"], meta["env_kwargs"], 5)
+    seeds = eval_seeds(5, 2)
+    plain = evaluate(policy, normalizer, env, seeds, "beta")
+    collector = TraceCollector()
+    traced = evaluate(policy, normalizer, env, seeds, "beta", collector)
+    np.testing.assert_array_equal(plain, traced)
+    assert [t.episode_return for t in collector.traces] == list(traced)
+
+
+@pytest.mark.parametrize(
+    "cfg,error,match",
+    [
+        ({"mode": "disk"}, UnknownNameError, "valid logger modes"),
+        ({"frame_every": 0}, ConfigError, "frame_every"),
+        ({"frame_size": [4, 4]}, ConfigError, "frame_size"),
+        ({"mode": "connect"}, ConfigError, "logger.url"),
+        ({"colour": "red"}, ConfigError, "unknown logger keys"),
+    ],
+)
+def test_logger_config_validation(cfg, error, match):
+    with pytest.raises(error, match=match):
+        RecordingConfig.from_mapping(cfg)
+
+
+def test_review_of_a_directory_without_recording_is_a_clear_error(tmp_path):
+    with pytest.raises(HRTCError, match="no recording"):
+        review.load(tmp_path)
+    sink = RerunSink(tmp_path / "empty", RecordingConfig(), NAMES, 1)
+    sink.close()
+    with pytest.raises(HRTCError, match="no finished evaluation episode"):
+        review.load(tmp_path / "empty")
