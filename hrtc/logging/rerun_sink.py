@@ -276,3 +276,15 @@ def read_recording(paths: Sequence[str | Path], contents: str = "/**", index: st
     if not tables:
         return pd.DataFrame()
     return pd.concat(tables, ignore_index=True)
+
+
+def stores(path: str | Path) -> dict[str, int]:
+    """How many stores of each kind (``recording``, ``blueprint``) an ``.rrd`` file holds."""
+    import warnings
+
+    from rerun.chunk import RrdReader
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        reader = RrdReader(str(path))
+        return {"recording": len(reader.recordings()), "blueprint": len(reader.blueprints())}

@@ -15,7 +15,7 @@ from omegaconf import OmegaConf
 
 from hrtc import review
 from hrtc.errors import ConfigError, HRTCError, UnknownNameError
-from hrtc.logging.rerun_sink import RerunSink, read_recording, segment_paths
+from hrtc.logging.rerun_sink import RerunSink, read_recording, segment_paths, stores
 from hrtc.logging.trace import RecordingConfig, TraceCollector, weight_summary
 from hrtc.ppo import PPOConfig
 from hrtc.trainer import ROOT_CONF, RunConfig, Trainer, eval_seeds, evaluate
@@ -103,6 +103,7 @@ def test_recording_holds_training_metrics_samples_and_the_tree(trained):
     np.testing.assert_allclose(np.stack(updates["/train/losses/approx_kl"])[:, 0], train["losses/approx_kl"])
     samples = read_recording(paths, contents="/meta/weights", index="global_step").dropna(subset=["global_step"])
     assert len(samples) == len(train) * 50 // 10  # every 10th of 50 decisions per rollout
+    assert stores(paths[0]) == {"recording": 1, "blueprint": 1}  # `rerun recording.rrd` opens on our layout
     tree = read_recording(paths, contents="/tree", index=None)
     text = str(tree["/tree:TextDocument:text"].iloc[0])
     assert all(name in text for name in NAMES)

@@ -31,9 +31,10 @@ def test_resume_continues_the_csvs_and_the_step_count(tmp_path):
     assert load_checkpoint(tmp_path / "checkpoints" / "last.pt")["global_step"] == 2000
 
 
-def test_same_seed_same_evaluations(tmp_path):
-    Trainer(_cfg(1500), tmp_path / "a").train()
-    Trainer(_cfg(1500), tmp_path / "b").train()
+@pytest.mark.parametrize("vector", ["sync", "async"])
+def test_same_seed_same_evaluations(tmp_path, vector):
+    Trainer(_cfg(1500, vector=vector), tmp_path / "a").train()
+    Trainer(_cfg(1500, vector=vector), tmp_path / "b").train()
     pd.testing.assert_frame_equal(_eval_rows(tmp_path / "a"), _eval_rows(tmp_path / "b"))
 
 
