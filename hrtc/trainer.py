@@ -288,8 +288,10 @@ def load_policy(path: str | Path, which: str = "policy") -> LoadedPolicy:
     state = load_checkpoint(path)
     meta = dict(state["meta"])
     try:
-        policy = ActorCritic(int(meta["obs_dim"]), int(meta["out_dim"]), str(meta["dist"]),
-                             tuple(int(h) for h in meta["hidden"]))  # fmt: skip
+        obs_dim = int(meta["obs_dim"])
+        encoder = build_encoder(meta["encoder"], obs_dim) if meta.get("encoder") is not None else None
+        policy = ActorCritic(obs_dim, int(meta["out_dim"]), str(meta["dist"]), tuple(int(h) for h in meta["hidden"]),
+                             encoder=encoder)  # fmt: skip
         policy.load_state_dict(state[which])
     except (KeyError, RuntimeError, ValueError) as error:
         raise CheckpointError(f"{path}: cannot rebuild its policy ({_first(error)})") from error
@@ -402,6 +404,7 @@ class Trainer:
                 "decision_every": self.steps_per_decision,
                 "action_low": self.eval_env.action_space.low.tolist(),
                 "action_high": self.eval_env.action_space.high.tolist(),
+                "encoder": _plain(self.cfg.encoder),
             },
         }
 
