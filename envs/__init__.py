@@ -1,5 +1,6 @@
 """Task adapters to the gymnasium API and their registry: ``from envs import make, names``."""
 
+from envs import carracing as _carracing  # noqa: F401  (registers carracing)
 from envs import cartpole as _cartpole  # noqa: F401  (registers the cartpole tasks)
 from envs.registry import make, mj_model, names, register
 

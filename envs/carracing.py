@@ -1,0 +1,268 @@
+"""gymnasium's CarRacing with fast frames: the paper's main experiment (HRTC §4, Table 1).
+
+:class:`FastCarRacing` *is* gymnasium's ``CarRacing`` (a subclass: the same track generation, Box2D car, rewards
+and termination, driven by the same code) with one override: the 96x96 ``state_pixels`` frame is drawn by
+:class:`~envs.car_raster.CarRaster` instead of pygame: a step is 10-30x faster, measured side by side with gymnasium's
+on the shared project machine (``scripts/bench_carracing_speed.py``, ``benchmarks/results/carracing/speed/``). Its
+frames match gymnasium's within a mean absolute difference of 0.4 of 255 (bounds in ``tests/envs/test_carracing.py``).
+
+:class:`CarRacingTask` is the task the trainer sees (registered as ``carracing``): greyscale frames, a stack of the
+last ``frame_stack`` of them (oldest first), ``action_repeat`` physics frames per step (rewards summed, only the last
+frame drawn), gymnasium's 1000-frame time limit counted in frames, and :meth:`CarRacingTask.skill_state`.
+The action is gymnasium's: ``[steer, gas, brake]`` in ``[-1, 1] x [0, 1] x [0, 1]`` (steer -1 is full left).
+Reward: -0.1 per frame, +1000/N per new tile of an N-tile track, -100 (and the end) when the car leaves the
+playfield. Solved (the paper's rule): a mean return of 900 over 10 consecutive tracks.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium.envs.box2d import car_dynamics as cd
+from gymnasium.envs.box2d import car_racing as cr
+from gymnasium.utils import EzPickle
+
+from envs.car_raster import FRAME, Camera, CarRaster, CarShape, pack_polygons
+from envs.registry import register
+from hrtc.errors import ConfigError
+
+MAX_FRAMES = 1000  # gymnasium's registered time limit for CarRacing-v3, frames (one frame is 1/50 s)
+SOLVE_RETURN = 900.0  # the return both solve rules ask for, averaged over 10 (the paper) or 100 (gym) tracks
+STATE_KEYS = ("speed", "forward_speed", "lateral_speed", "yaw_rate", "steering_angle", "heading", "position",
+              "wheels_on_road", "progress")  # fmt: skip
+
+_HULL_RGB = tuple(float(int(c * 255)) for c in (0.8, 0.0, 0.0))  # Car.draw: [int(c * 255) for c in obj.color]
+_WHEEL_RGB = tuple(float(c) for c in cd.WHEEL_COLOR)
+
+
+class FastCarRacing(cr.CarRacing):
+    """gymnasium's ``CarRacing`` whose ``state_pixels`` frames come from :class:`~envs.car_raster.CarRaster`.
+
+    Physics, track generation, rewards, termination and every other render mode are gymnasium's own code. Frames are
+    (96, 96, 3) uint8 RGB as gymnasium's, or (96, 96) uint8 luma with ``grey=True`` (``GREY_WEIGHTS``).
+
+    Args:
+        grey: greyscale frames.
+        samples: the rasteriser's point samples per pixel along each axis.
+        **kwargs: gymnasium's ``CarRacing`` arguments (``lap_complete_percent``, ``domain_randomize``, ...).
+    """
+
+    def __init__(self, render_mode: str | None = None, *, grey: bool = False, samples: int = 3, **kwargs: Any) -> None:
+        super().__init__(render_mode=render_mode, **kwargs)
+        if not self.continuous:
+            raise ConfigError("FastCarRacing supports continuous actions only (HRTC blends continuous actions)")
+        self.grey = bool(grey)
+        self.raster = CarRaster(grey=self.grey, samples=samples)
+        self._skip_frame = False  # set while repeating an action: gymnasium's step() then draws nothing
+        self._car_id: int | None = None
+
+    # ------------------------------------------------------------------ the scene
+    def _create_track(self) -> bool:
+        success = super()._create_track()
+        if success:
+            self._adopt_track()
+        return success
+
+    def _adopt_track(self) -> None:
+        """Hand the new track to the rasteriser in gymnasium's drawing order (background, grass, road and kerbs).
+
+        The road tiles' colours move into one table: gymnasium recolours a tile in place (``tile.color[:] = ...``)
+        when the car touches it, so each tile's ``color`` (and its ``road_poly`` entry) becomes a view of a row of
+        that table and the rasteriser reads the live colours without a per-frame Python loop."""
+        b = cr.PLAYFIELD
+        polygons = [[(b, b), (b, -b), (-b, -b), (-b, b)]]
+        colours = [self.bg_color]
+        g = cr.GRASS_DIM
+        for x in range(-20, 20, 2):
+            for y in range(-20, 20, 2):
+                polygons.append([(g * x + g, g * y), (g * x, g * y), (g * x, g * y + g), (g * x + g, g * y + g)])
+                colours.append(self.grass_color)
+        first_road = len(polygons)
+        for vertices, colour in self.road_poly:
+            polygons.append(vertices)
+            colours.append(np.asarray(colour, dtype=np.float64))
+        world = pack_polygons(polygons, np.stack(colours))
+        tiles = {id(tile.color): tile for tile in self.road}
+        for k, (vertices, colour) in enumerate(self.road_poly):
+            tile = tiles.get(id(colour))
+            if tile is not None:
+                view = world.rgb[first_road + k]
+                tile.color = view
+                self.road_poly[k] = (vertices, view)
+        self.raster.set_world(world, field_half=cr.PLAYFIELD)
+
+    def _adopt_car(self) -> None:
+        """Hand the new car's shape to the rasteriser: every fixture's vertices in its body's frame (Box2D's order)."""
+        car = self.car
+        polygons, bodies, colours = [], [], []
+        for index, body in enumerate(car.drawlist):  # the four wheels, then the hull
+            for fixture in body.fixtures:
+                polygons.append(list(fixture.shape.vertices))
+                bodies.append(index)
+                colours.append(_WHEEL_RGB if "phase" in body.__dict__ else _HULL_RGB)
+        packed = pack_polygons(polygons, np.array(colours))
+        self.raster.set_car(CarShape(packed.vertices, packed.counts, np.array(bodies, np.int64), packed.rgb))
+        self._car_id = id(car)
+
+    def _camera(self) -> Camera:
+        zoom = 0.1 * cr.SCALE * max(1 - self.t, 0) + cr.ZOOM * cr.SCALE * min(self.t, 1)  # gymnasium's zoom-in
+        x, y = self.car.hull.position
+        return Camera(float(x), float(y), -float(self.car.hull.angle), float(zoom))
+
+    def draw_frame(self) -> np.ndarray:
+        """The current ``state_pixels`` frame: (96, 96, 3) RGB or, with ``grey``, (96, 96), uint8."""
+        car = self.car
+        if self._car_id != id(car):  # a new car each reset
+            self._adopt_car()
+        poses = np.array([(*body.position, body.angle) for body in car.drawlist])  # (5, 3) wheels then hull
+        phases = np.array([wheel.phase for wheel in car.wheels])
+        velocity = car.hull.linearVelocity
+        indicators = np.array([math.sqrt(velocity[0] ** 2 + velocity[1] ** 2), *(w.omega for w in car.wheels),
+                               car.wheels[0].joint.angle, car.hull.angularVelocity])  # fmt: skip
+        frame = self.raster.render(self._camera(), poses, phases, indicators, f"{self.reward:04.0f}")
+        return frame[:, :, 0] if self.grey else frame
+
+    def _render(self, mode: str) -> Any:
+        if mode != "state_pixels":
+            return super()._render(mode)
+        if "t" not in self.__dict__ or self._skip_frame:
+            return None
+        return self.draw_frame()
+
+    def gym_frame(self) -> np.ndarray:
+        """The frame gymnasium itself draws for the current state, (96, 96, 3) uint8 (slow: for tests)."""
+        return super()._render("state_pixels")
+
+    # ------------------------------------------------------------------ named state
+    def skill_state(self) -> dict[str, np.ndarray]:
+        """Named quantities of the current state, each a float64 array (world units: a track is 40/6 = 6.7 wide):
+
+        ``speed`` (1,) world units/s; ``forward_speed``, ``lateral_speed`` (1,) along the car's nose and to its
+        right; ``yaw_rate`` (1,) rad/s, counter-clockwise; ``steering_angle`` (1,) rad of the front-left wheel,
+        positive left; ``heading`` (1,) rad; ``position`` (2,) world units; ``wheels_on_road`` (1,) 0-4;
+        ``progress`` (1,) fraction of the track's tiles visited."""
+        car = self.car
+        if car is None:
+            raise RuntimeError("skill_state() before reset()")
+        vx, vy = car.hull.linearVelocity
+        heading = float(car.hull.angle)
+        forward = np.array([-math.sin(heading), math.cos(heading)])  # the car's nose points along local +y
+        velocity = np.array([vx, vy], dtype=np.float64)
+        return {
+            "speed": np.array([np.hypot(vx, vy)]),
+            "forward_speed": np.array([velocity @ forward]),
+            "lateral_speed": np.array([velocity @ np.array([forward[1], -forward[0]])]),
+            "yaw_rate": np.array([float(car.hull.angularVelocity)]),
+            "steering_angle": np.array([float(car.wheels[0].joint.angle)]),
+            "heading": np.array([heading]),
+            "position": np.array(car.hull.position, dtype=np.float64),
+            "wheels_on_road": np.array([float(sum(1 for w in car.wheels if w.tiles))]),
+            "progress": np.array([self.tile_visited_count / max(len(self.track), 1)]),
+        }
+
+
+class CarRacingTask(FastCarRacing):
+    """The ``carracing`` task: stacked greyscale frames, action repeat, gymnasium's time limit in frames.
+
+    Observation: the last ``frame_stack`` greyscale frames, oldest first, uint8; flattened to
+    ``(frame_stack * 96 * 96,)`` (the trainer's buffers are flat; :attr:`frame_shape` says how to reshape) or
+    ``(frame_stack, 96, 96)`` with ``flatten=False``. After a reset the stack holds copies of the first frame.
+
+    Args:
+        action_repeat: physics frames per step; rewards summed, the episode ends at the first terminal frame.
+        frame_stack: frames in an observation.
+        max_frames: the time limit in physics frames (truncation).
+        flatten: flat observations.
+        episode_log: if set, a CSV file that gets one line per finished episode (appended, safe across processes):
+            ``wall_time, pid, reset_seed (-1 when reset without a seed), return, frames, lap_finished``.
+        **kwargs: :class:`FastCarRacing`'s and gymnasium's arguments.
+    """
+
+    def __init__(
+        self,
+        render_mode: str | None = None,
+        *,
+        action_repeat: int = 1,
+        frame_stack: int = 4,
+        max_frames: int = MAX_FRAMES,
+        flatten: bool = True,
+        episode_log: str | None = None,
+        **kwargs: Any,
+    ) -> None:
+        kwargs.setdefault("grey", True)
+        if not kwargs["grey"]:
+            raise ConfigError("the carracing task observes greyscale frames")
+        for name, value in (("action_repeat", action_repeat), ("frame_stack", frame_stack), ("max_frames", max_frames)):
+            if not isinstance(value, int) or isinstance(value, bool) or value < 1:
+                raise ConfigError(f"{name} must be a positive integer, got {value!r}")
+        super().__init__(render_mode=render_mode, **kwargs)
+        EzPickle.__init__(self, render_mode=render_mode, action_repeat=action_repeat, frame_stack=frame_stack,
+                          max_frames=max_frames, flatten=flatten, episode_log=episode_log, **kwargs)  # fmt: skip
+        self.action_repeat, self.max_frames, self.episode_log = action_repeat, max_frames, episode_log
+        self.frame_shape = (frame_stack, FRAME, FRAME)
+        self._stack = np.zeros(self.frame_shape, np.uint8)
+        shape = (int(np.prod(self.frame_shape)),) if flatten else self.frame_shape
+        self.observation_space = gym.spaces.Box(0, 255, shape, np.uint8)
+        self._flatten = flatten
+        self.frames, self.episode_return, self._reset_seed = 0, 0.0, -1
+
+    def _observation(self) -> np.ndarray:
+        return self._stack.reshape(-1).copy() if self._flatten else self._stack.copy()
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict]:
+        self._skip_frame = True  # gymnasium's reset steps once without an action: its frame is drawn below
+        try:
+            super().reset(seed=seed, options=options)
+        finally:
+            self._skip_frame = False
+        self._stack[:] = self.draw_frame()
+        self.frames, self.episode_return = 0, 0.0
+        self._reset_seed = -1 if seed is None else int(seed)
+        return self._observation(), {}
+
+    def step(self, action: np.ndarray | None) -> tuple[np.ndarray, float, bool, bool, dict]:
+        if action is None:  # gymnasium's reset() takes this step itself
+            return super().step(None)
+        action = np.asarray(action, dtype=np.float32)
+        total, terminated, info = 0.0, False, {}
+        self._skip_frame = True
+        try:
+            for _ in range(self.action_repeat):
+                _, reward, terminated, _, info = super().step(action)
+                self.frames += 1
+                total += float(reward)
+                if terminated or self.frames >= self.max_frames:
+                    break
+        finally:
+            self._skip_frame = False
+        truncated = self.frames >= self.max_frames
+        self._stack[:-1] = self._stack[1:]
+        self._stack[-1] = self.draw_frame()
+        self.episode_return += total
+        if terminated or truncated:
+            self._log_episode(bool(info.get("lap_finished", False)))
+        info = dict(info, frames=self.frames)
+        return self._observation(), total, bool(terminated), bool(truncated), info
+
+    def _log_episode(self, lap_finished: bool) -> None:
+        if not self.episode_log:
+            return
+        fields = (f"{time.time():.3f}", os.getpid(), self._reset_seed, f"{self.episode_return:.4f}", self.frames,
+                  int(lap_finished))  # fmt: skip
+        line = ",".join(str(f) for f in fields) + "\n"
+        fd = os.open(self.episode_log, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+        try:
+            os.write(fd, line.encode())  # one write of a short line under O_APPEND: atomic across processes
+        finally:
+            os.close(fd)
+
+
+@register("carracing")
+def carracing(**kwargs: Any) -> CarRacingTask:
+    """gymnasium's CarRacing-v3 (continuous) with fast greyscale frames, a 4-frame stack and action repeat."""
+    return CarRacingTask(**kwargs)

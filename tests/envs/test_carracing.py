@@ -1,0 +1,203 @@
+"""The fast CarRacing against gymnasium's own: identical rewards and termination, frames within stated bounds.
+
+Each test drives gymnasium's ``CarRacing`` and :class:`~envs.carracing.FastCarRacing` in lockstep with the same
+seed and actions (a track-following driver with noise, and a random "wild" one that spins off onto the grass), and
+compares every step. Frame bounds (pixel values 0-255; measured on 5 tracks x 400 steps: RGB mean 0.11-0.17, worst
+frame 0.44; grey mean 0.14-0.21, worst frame 0.58; at most 1.3% of a frame's pixels off by more than 16):
+"""
+
+import math
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.envs.box2d.car_racing import CarRacing
+
+import envs
+from envs.car_raster import GREY_WEIGHTS
+from envs.carracing import STATE_KEYS, CarRacingTask, FastCarRacing
+
+MEAN_BOUND = 0.4  # mean absolute difference over all frames of a track, RGB
+GREY_MEAN_BOUND = 0.5  # the same for greyscale frames (luma rounding adds about 0.05)
+FRAME_BOUND = 1.0  # mean absolute difference of any single frame
+FAR_PIXELS = 16  # a pixel "far off" differs by more than this...
+FAR_FRACTION = 0.03  # ...and at most this fraction of a frame's pixels may be far off
+
+
+def grey(frame: np.ndarray) -> np.ndarray:
+    return np.floor(frame.astype(np.float64) @ GREY_WEIGHTS + 0.5)
+
+
+def driver(env: CarRacing, rng: np.random.Generator, mode: str, noise: float = 0.3) -> np.ndarray:
+    """``road``: pure pursuit of the track centre line 6 tiles ahead, with steering noise; ``wild``: random."""
+    if mode == "wild":
+        brake = rng.uniform(0, 0.3) * (rng.random() < 0.2)
+        return np.array([rng.uniform(-1, 1), rng.uniform(0, 1), brake], np.float32)
+    car = env.car
+    pos, heading = np.array(car.hull.position), car.hull.angle
+    centre = np.array([(t[2], t[3]) for t in env.track])
+    target = centre[(int(np.argmin(((centre - pos) ** 2).sum(1))) + 6) % len(centre)]
+    forward, to_target = np.array([-math.sin(heading), math.cos(heading)]), target - pos
+    angle = math.atan2(forward[0] * to_target[1] - forward[1] * to_target[0], forward @ to_target)
+    speed = math.hypot(*car.hull.linearVelocity)
+    steer = float(np.clip(-2.0 * angle + noise * rng.normal(), -1, 1))
+    return np.array([steer, 0.6 if speed < 60 else 0.0, 0.0 if speed < 70 else 0.5], np.float32)
+
+
+@pytest.mark.parametrize(("seed", "mode", "steps"), [(0, "road", 120), (1, "wild", 100), (5, "road", 120)])
+def test_frames_rewards_and_termination_match_gymnasium(seed, mode, steps):
+    ref, fast, fast_grey = CarRacing(), FastCarRacing(), FastCarRacing(grey=True)
+    frames = [ref.reset(seed=seed)[0], fast.reset(seed=seed)[0], fast_grey.reset(seed=seed)[0]]
+    rng = np.random.default_rng(seed)
+    rgb_diffs, grey_diffs = [], []
+    for t in range(steps + 1):
+        ref_frame, fast_frame, grey_frame = frames
+        assert fast_frame.shape == (96, 96, 3) and fast_frame.dtype == np.uint8 and grey_frame.shape == (96, 96)
+        diff = np.abs(ref_frame.astype(int) - fast_frame)
+        grey_diff = np.abs(grey(ref_frame) - grey_frame)
+        assert diff.mean() <= FRAME_BOUND and grey_diff.mean() <= FRAME_BOUND, f"step {t}"
+        assert (diff.max(-1) > FAR_PIXELS).mean() <= FAR_FRACTION, f"step {t}"
+        rgb_diffs.append(diff.mean())
+        grey_diffs.append(grey_diff.mean())
+        if t == steps:
+            break
+        action = driver(ref, rng, mode)
+        outs = [env.step(action) for env in (ref, fast, fast_grey)]
+        frames = [o[0] for o in outs]
+        assert outs[0][1] == outs[1][1] == outs[2][1], f"step {t}: rewards differ"
+        assert outs[0][2:4] == outs[1][2:4] == outs[2][2:4], f"step {t}: termination differs"
+    assert np.mean(rgb_diffs) <= MEAN_BOUND and np.mean(grey_diffs) <= GREY_MEAN_BOUND
+    if mode == "road":  # the driver really drove: tiles visited (and recoloured) along the way
+        assert fast.tile_visited_count == ref.tile_visited_count > 20
+
+
+def test_leaving_the_playfield_ends_both_with_minus_100():
+    ref, fast = CarRacing(), FastCarRacing()
+    ref.reset(seed=2)
+    fast.reset(seed=2)
+    outs = None
+    for t in range(250):  # about 150 steps: 110 world units from the start to the edge
+        car = ref.car
+        pos, heading = np.array(car.hull.position), car.hull.angle
+        away = pos / np.linalg.norm(pos)  # head radially out of the playfield
+        forward = np.array([-math.sin(heading), math.cos(heading)])
+        angle = math.atan2(forward[0] * away[1] - forward[1] * away[0], forward @ away)
+        action = np.array([np.clip(-1.0 * angle, -1, 1), 0.3, 0.0], np.float32)  # full gas would spin the car
+        outs = ref.step(action), fast.step(action)
+        assert outs[0][1:4] == outs[1][1:4], f"step {t}"
+        if outs[0][2]:
+            break
+    assert outs is not None and outs[0][2] and outs[1][2] and outs[0][1] == outs[1][1] == -100
+    assert np.abs(outs[0][0].astype(int) - outs[1][0]).mean() <= FRAME_BOUND  # the black beyond the field
+
+
+@pytest.mark.slow
+def test_a_whole_lap_finishes_at_the_same_frame():
+    ref, fast = CarRacing(), FastCarRacing()
+    ref.reset(seed=3)
+    fast.reset(seed=3)
+    rng = np.random.default_rng(3)
+    for t in range(1500):  # this driver, without noise, laps track 3 in 786 frames
+        action = driver(ref, rng, "road", noise=0.0)
+        a, b = ref.step(action), fast.step(action)
+        assert a[1:4] == b[1:4] and a[4] == b[4], f"step {t}"
+        assert np.abs(a[0].astype(int) - b[0]).mean() <= FRAME_BOUND
+        if a[2]:
+            break
+    assert a[2] and a[4]["lap_finished"]
+
+
+def test_domain_randomised_colours_are_drawn_too():
+    ref, fast = CarRacing(domain_randomize=True), FastCarRacing(domain_randomize=True)
+    frames = ref.reset(seed=4)[0], fast.reset(seed=4)[0]
+    for _ in range(60):
+        action = np.array([0.2, 0.5, 0.0], np.float32)
+        frames = ref.step(action)[0], fast.step(action)[0]
+    assert np.abs(frames[0].astype(int) - frames[1]).mean() <= FRAME_BOUND
+
+
+def test_other_render_modes_are_gymnasiums():
+    env = FastCarRacing(render_mode="rgb_array")
+    env.reset(seed=0)
+    env.step(np.array([0.0, 1.0, 0.0], np.float32))
+    video = env.render()
+    assert video.shape == (400, 600, 3) and video.std() > 0
+
+
+# --------------------------------------------------------------------------------------------------- the task
+def test_task_repeats_actions_stacks_grey_frames_and_sums_rewards():
+    task = CarRacingTask(action_repeat=4)
+    single = FastCarRacing(grey=True)
+    obs, _ = task.reset(seed=7)
+    first = single.reset(seed=7)[0]
+    assert task.observation_space.contains(obs) and obs.shape == (4 * 96 * 96,)
+    stack = obs.reshape(task.frame_shape)
+    assert all(np.array_equal(stack[k], first) for k in range(4))  # the stack starts as copies of frame one
+    rng = np.random.default_rng(0)
+    previous = stack
+    for _ in range(5):
+        action = np.array([rng.uniform(-1, 1), rng.uniform(0, 1), 0.0], np.float32)
+        obs, reward, terminated, truncated, info = task.step(action)
+        total = sum(single.step(action)[1] for _ in range(4))
+        assert reward == pytest.approx(total, abs=1e-9) and not terminated and not truncated
+        stack = obs.reshape(task.frame_shape)
+        np.testing.assert_array_equal(stack[-1], single.draw_frame())  # only the last frame of a repeat is drawn
+        np.testing.assert_array_equal(stack[:-1], previous[1:])
+        previous = stack
+    assert task.frames == 20 and info["frames"] == 20
+
+
+def test_time_limit_counts_frames_and_finished_episodes_are_logged(tmp_path):
+    log = tmp_path / "episodes.csv"
+    task = envs.make("carracing", action_repeat=8, max_frames=20, episode_log=str(log), flatten=False)
+    obs, _ = task.reset(seed=1)
+    assert obs.shape == (4, 96, 96)
+    flags, total = [], 0.0
+    for _ in range(3):
+        _, reward, terminated, truncated, info = task.step(np.array([0.0, 0.5, 0.0], np.float32))
+        flags.append((terminated, truncated))
+        total += reward
+    assert flags == [(False, False), (False, False), (False, True)] and info["frames"] == 20
+    fields = log.read_text().strip().split(",")
+    assert int(fields[2]) == 1 and float(fields[3]) == pytest.approx(total, abs=1e-3) and int(fields[4]) == 20
+
+
+def test_same_seed_same_observations():
+    def rollout(seed):
+        task = envs.make("carracing", action_repeat=2)
+        trace = [task.reset(seed=seed)[0]]
+        trace += [task.step(np.array([math.sin(t / 3), 0.7, 0.0], np.float32))[0] for t in range(15)]
+        return np.stack(trace)
+
+    np.testing.assert_array_equal(rollout(3), rollout(3))
+    assert not np.array_equal(rollout(3)[-1], rollout(4)[-1])
+
+
+def test_skill_state_is_the_cars_physical_state():
+    task = envs.make("carracing", action_repeat=4)
+    task.reset(seed=0)
+    for _ in range(10):
+        task.step(np.array([0.3, 1.0, 0.0], np.float32))
+    state = task.unwrapped.skill_state()
+    assert tuple(state) == STATE_KEYS and all(np.all(np.isfinite(v)) for v in state.values())
+    speed, forward, lateral = state["speed"][0], state["forward_speed"][0], state["lateral_speed"][0]
+    assert speed > 1.0 and forward > 0.0 and speed == pytest.approx(math.hypot(forward, lateral))
+    assert 0.0 < state["progress"][0] < 1.0 and state["wheels_on_road"][0] in (0, 1, 2, 3, 4)
+
+
+def test_static_intents_pass_check_skill():
+    from hrtc.check import check_task_skills
+    from hrtc.cli import task_config
+
+    cfg = task_config("carracing")
+    assert set(cfg["skills"]) == {"turn_left", "turn_right", "accelerate", "decelerate", "hold"}
+    results = check_task_skills(cfg, n=40)
+    assert results["turn_right"]["max"] == 1.0 and results["turn_left"]["min"] == -1.0
+
+
+def test_gymnasium_env_checker_accepts_the_task():
+    from gymnasium.utils.env_checker import check_env
+
+    task = envs.make("carracing", action_repeat=2)
+    check_env(task, skip_render_check=True)
+    assert isinstance(task, gym.Env)
