@@ -9,6 +9,14 @@ import envs
 from hrtc.errors import UnknownNameError
 
 TASKS = [name for name in envs.names() if not name.startswith("test_")]
+CARTPOLES = [name for name in TASKS if name.startswith("cartpole")]  # dm_control cart-poles: time limits, physics
+
+
+def _actions(env, n, seed=0):
+    """``n`` actions spread over the task's action space (a fixed sequence for a seed)."""
+    space = env.action_space
+    rng = np.random.default_rng(seed)
+    return [rng.uniform(space.low, space.high).astype(space.dtype) for _ in range(n)]
 
 
 def test_registry_lists_the_cartpole_tasks():
@@ -25,18 +33,20 @@ def test_gymnasium_conformance(task):
     env = envs.make(task)
     check_env(env, skip_render_check=True)
     assert isinstance(env, gym.Env)
-    assert env.observation_space.dtype == np.float32 and env.action_space.dtype == np.float32
+    assert isinstance(env.action_space, gym.spaces.Box) and env.action_space.dtype == np.float32
+    assert env.observation_space.dtype in (np.float32, np.uint8)  # vectors, or pixels (carracing)
 
 
 @pytest.mark.parametrize("task", TASKS)
 def test_observations_are_finite_and_match_the_space(task):
     env = envs.make(task)
     obs, _ = env.reset(seed=0)
-    rng = np.random.default_rng(0)
-    for _ in range(200):
-        obs, reward, terminated, truncated, _ = env.step(rng.uniform(-1, 1, env.action_space.shape).astype(np.float32))
+    for action in _actions(env, 200):
+        obs, reward, terminated, truncated, _ = env.step(action)
         assert obs.shape == env.observation_space.shape and np.all(np.isfinite(obs))
         assert np.isfinite(reward)
+        if terminated or truncated:
+            obs, _ = env.reset(seed=1)
 
 
 @pytest.mark.parametrize("task", TASKS)
@@ -45,15 +55,18 @@ def test_same_seed_same_episode_different_seed_different_start(task):
         env = envs.make(task)
         obs, _ = env.reset(seed=seed)
         trace = [obs]
-        for t in range(50):
-            trace.append(env.step(np.array([np.sin(t / 5)], np.float32))[0])
+        for action in _actions(env, 50):
+            obs, _, terminated, truncated, _ = env.step(action)
+            trace.append(obs)
+            if terminated or truncated:
+                break
         return np.stack(trace)
 
     np.testing.assert_array_equal(rollout(3), rollout(3))
     assert not np.array_equal(rollout(3)[0], rollout(4)[0])
 
 
-@pytest.mark.parametrize("task", TASKS)
+@pytest.mark.parametrize("task", CARTPOLES)
 def test_time_limit_is_truncation_not_termination(task):
     env = envs.make(task, time_limit=0.1)  # 10 steps of 0.01 s
     env.reset(seed=0)
@@ -62,6 +75,17 @@ def test_time_limit_is_truncation_not_termination(task):
 
 
 @pytest.mark.parametrize("task", TASKS)
+def test_skill_state_is_named_finite_arrays(task):
+    env = envs.make(task)
+    env.reset(seed=0)
+    for action in _actions(env, 5):
+        env.step(action)
+        state = env.unwrapped.skill_state()
+        assert state and all(isinstance(k, str) for k in state)
+        assert all(isinstance(v, np.ndarray) and np.all(np.isfinite(v)) for v in state.values())
+
+
+@pytest.mark.parametrize("task", CARTPOLES)
 def test_skill_state_names_physical_quantities(task):
     env = envs.make(task)
     env.reset(seed=0)
