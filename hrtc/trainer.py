@@ -31,6 +31,7 @@ from hrtc.logging.trace import Recorder, RecordingConfig
 from hrtc.normalize import ObsNormalizer, RewardScaler
 from hrtc.policy import ActorCritic
 from hrtc.ppo import Batch, PPOConfig, compute_gae, ppo_update
+from hrtc.tree import describe
 
 log = logging.getLogger(__name__)
 
@@ -67,6 +68,7 @@ class RunConfig:
     checkpoint_every: int = 10_000
     torch_threads: int = 1
     progress: bool = True
+    init_from: str | None = None
     max_skill_fault_rate: float = 0.05
     max_skipped_updates: int = 3
     solve_threshold: float | None = None
@@ -294,7 +296,7 @@ def load_policy(path: str | Path, which: str = "policy") -> LoadedPolicy:
                              encoder=encoder)  # fmt: skip
         policy.load_state_dict(state[which])
     except (KeyError, RuntimeError, ValueError) as error:
-        raise CheckpointError(f"{path}: cannot rebuild its policy ({_first(error)})") from error
+        raise CheckpointError(f"{path}: its weights do not fit its own meta ({_first(error)})") from error
     policy.eval()
     normalizer = None
     if state.get("obs_rms"):
@@ -348,6 +350,10 @@ class Trainer:
         self._start = time.perf_counter()  # reset when train() starts
         if self.skill_names:  # the skills' first proposals: a wrong action size is an error now, not in a worker
             self.eval_env.reset(seed=cfg.seed)
+        if cfg.init_from and not resume:  # fine-tune: start from a trained policy of the same shape
+            from skills.learned import load_policy_weights
+
+            load_policy_weights(self, cfg.init_from)
         if resume and not (self.ckpt_dir / "last.pt").exists():
             log.warning("resume: no checkpoint in %s yet; starting from scratch", self.ckpt_dir)
             resume = False
@@ -364,8 +370,8 @@ class Trainer:
 
             task_action_dim = int(getattr(self.eval_env, "action_dim", space.shape[0]))
             names = self.skill_names or tuple(f"a{i}" for i in range(space.shape[0]))
-            tree = library_text(cfg.task, cfg.skills, cfg.algo, cfg.dist, cfg.decision_every, cfg.action_filter)
-            self.recorder = RerunSink(self.run_dir, cfg.logger, names, task_action_dim, tree, resume)
+            tree, paths = describe(self.eval_env, f"{cfg.task}: {cfg.algo}-{cfg.dist}")
+            self.recorder = RerunSink(self.run_dir, cfg.logger, names, task_action_dim, tree, resume, tree_paths=paths)
             self.recorder.updates = self.update
             self.sinks.append(self.recorder)
             if cfg.logger.frames:
@@ -611,20 +617,6 @@ class Trainer:
 
 def _interrupt(signum: int, frame: Any) -> None:
     raise KeyboardInterrupt(f"signal {signum}")
-
-
-def library_text(task: str, skills: Mapping[str, Any], algo: str = "hrtc", dist: str = "beta",
-                 decision_every: int = 1, action_filter: str = "sum") -> str:  # fmt: skip
-    """The task's skill library as markdown: one line per skill with its class, state filter and rate."""
-    if algo != "hrtc":
-        return f"# {task}\n\nplain PPO on the task's raw actions ({dist})"
-    lines = [f"# {task}: {len(skills)} skills, weights by a {dist} meta-policy every {decision_every} env step(s), "
-             f"action filter `{action_filter}`", ""]  # fmt: skip
-    for name, spec in skills.items():
-        target = (spec.get("skill") or {}).get("_target_", "?")
-        state = ", ".join(spec.get("state") or []) or "its default state keys"
-        lines.append(f"- **{name}**: `{target}`, every {spec.get('every', 1)} env step(s), reads {state}")
-    return "\n".join(lines)
 
 
 def _plain(value: Any) -> Any:

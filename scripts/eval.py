@@ -52,15 +52,14 @@ def run(opts: dict) -> str:
     recorder, render = None, None
     if opts["logger"] != "off":
         from hrtc.logging.rerun_sink import RerunSink
-        from hrtc.trainer import library_text
+        from hrtc.tree import describe
 
         cfg = RecordingConfig(mode=str(opts["logger"]), frames=bool(opts["frames"]),
                               frame_every=int(opts["frame_every"]), frame_episodes=int(opts["frame_episodes"]),
                               frame_evals_every=1)  # fmt: skip
-        tree = library_text(meta["task"], meta["skills_cfg"], meta["algo"], meta["dist"], int(meta["decision_every"]),
-                            meta["action_filter"])  # fmt: skip
+        tree, paths = describe(env, f"{meta['task']}: {meta['algo']}-{meta['dist']} from {path}")
         task_action_dim = int(getattr(env, "action_dim", env.action_space.shape[0]))
-        recorder = RerunSink(out, cfg, names, task_action_dim, tree)
+        recorder = RerunSink(out, cfg, names, task_action_dim, tree, tree_paths=paths)
         recorder.start_evaluation(int(meta.get("global_step", 0)), last=True)
         render = frame_source(env, cfg.frame_size) if cfg.frames else None
     collector = TraceCollector(recorder)

@@ -39,7 +39,8 @@ def run(opts: dict) -> str:
     from hrtc.cli import task_config
     from hrtc.errors import ConfigError, UnknownNameError
     from hrtc.logging.trace import RecordingConfig, TraceCollector, skill_statistics
-    from hrtc.trainer import Decision, eval_seeds, frame_source, library_text, make_env, run_episodes
+    from hrtc.trainer import Decision, eval_seeds, frame_source, make_env, run_episodes
+    from hrtc.tree import describe
 
     task = task_config(str(opts["task"]))
     skills = task.get("skills") or {}
@@ -76,7 +77,8 @@ def run(opts: dict) -> str:
             frame_episodes=episodes,
             frame_evals_every=1,
         )
-        recorder = RerunSink(out, cfg, names, int(env.action_dim), library_text(task["name"], skills))  # fmt: skip
+        tree, paths = describe(env, f"{task['name']}: {label}")
+        recorder = RerunSink(out, cfg, names, int(env.action_dim), tree, tree_paths=paths)
         recorder.start_evaluation(0, last=True)
         render = frame_source(env, cfg.frame_size) if cfg.frames else None
     collector = TraceCollector(recorder)

@@ -29,6 +29,10 @@ def main(cfg: DictConfig) -> None:
     run_dir = Path(HydraConfig.get().runtime.output_dir)
     trainer = start_run(cfg, run_dir)
     log.info("run directory: %s", run_dir)
+    if trainer.skill_names:
+        from hrtc.tree import env_tree, format_tree
+
+        log.info("skill tree:\n%s", format_tree(env_tree(trainer.eval_env)))
     try:
         result = trainer.train()
     except HRTCError as error:  # a skill faulting too often, a loss that stays NaN: the run is saved, say why

@@ -5,6 +5,7 @@ Entities (a skill's config name is its entity name):
 - per decision of every evaluation episode, on timelines ``env_step`` (evaluation env steps laid end to end over
   the run: one monotone axis for the plots and the video) and ``episode`` (the evaluation episode's index in the run):
   ``meta/weights`` (one series per skill), ``meta/alpha``, ``meta/beta``, ``meta/confidence`` (alpha + beta),
+  ``meta/effective_weights`` (skill trees: every node's weight times its parents', one series per tree path),
   ``skills/<name>/action``, ``skills/<name>/<diagnostic>`` (solver status, solve time, cost, faults...),
   ``action/blended``, ``reward``, ``value``, and ``world/camera`` frames;
 - per evaluation episode, on ``episode``: ``eval/episode/return``, ``eval/episode/length``,
@@ -59,6 +60,7 @@ def blueprint(skill_names: Sequence[str], frames: bool = True) -> rrb.Blueprint:
     top = rrb.Horizontal(
         rrb.TimeSeriesView(origin="meta/weights", name="skill weights"),
         rrb.TimeSeriesView(origin="meta/confidence", name="confidence (alpha + beta)"),
+        rrb.TimeSeriesView(origin="meta/effective_weights", name="effective weights (skill trees)"),
     )
     actions = rrb.TimeSeriesView(
         origin="/", contents=["action/**", *[f"skills/{n}/action" for n in skill_names]], name="proposals and blend"
@@ -94,8 +96,11 @@ class RerunSink:
     """
 
     def __init__(self, run_dir: str | Path, cfg: RecordingConfig, skill_names: Sequence[str], action_dim: int,
-                 tree: str = "", resume: bool = False, recording_id: str | None = None) -> None:  # fmt: skip
+                 tree: str = "", resume: bool = False, recording_id: str | None = None,
+                 tree_paths: Sequence[str] = ()) -> None:  # fmt: skip
         self.cfg, self.skill_names, self.action_dim = cfg, tuple(skill_names), int(action_dim)
+        # Nested skills (an HRTC policy as a skill): every node's effective weight gets a series.
+        self.tree_paths = tuple(tree_paths) if len(tree_paths) > len(self.skill_names) else ()
         run_dir = Path(run_dir)
         run_dir.mkdir(parents=True, exist_ok=True)
         previous = segment_paths(run_dir) if resume else []
@@ -130,6 +135,8 @@ class RerunSink:
         rec, names = self.rec, list(self.skill_names)
         for entity in ("meta/weights", "meta/alpha", "meta/beta", "meta/confidence"):
             rec.log(entity, rr.SeriesLines(names=names), static=True)
+        if self.tree_paths:
+            rec.log("meta/effective_weights", rr.SeriesLines(names=list(self.tree_paths)), static=True)
         actions = [f"a{i}" for i in range(self.action_dim)]
         rec.log("action/blended", rr.SeriesLines(names=actions), static=True)
         for name in self.skill_names:
@@ -208,6 +215,8 @@ class RerunSink:
         if len(data["proposals"]):
             for k, name in enumerate(self.skill_names):
                 self._columns(f"skills/{name}/action", index, data["proposals"][:, k, :])
+        if self.tree_paths:
+            self._columns("meta/effective_weights", index, self._effective(trace, data["weights"]))
         self._columns("action/blended", index, data["action"])
         self._columns("reward", index, data["reward"][:, None])
         if trace.values is not None:
@@ -232,6 +241,17 @@ class RerunSink:
         rec.reset_time()
         self.episode += 1
         self.env_step = int(steps[-1]) + 1
+
+    def _effective(self, trace: EpisodeTrace, weights: np.ndarray) -> np.ndarray:
+        """(T, nodes) effective weights: a child's weight times its parents' (``hrtc.tree.effective_weights``)."""
+        from hrtc.tree import effective_weights
+
+        rows = []
+        for t, w in enumerate(weights):
+            info = {name: {k: v[t] for k, v in d.items() if len(v) > t} for name, d in trace.skill_info.items()}
+            eff = effective_weights(self.skill_names, w, info)
+            rows.append([eff.get(path, np.nan) for path in self.tree_paths])
+        return np.asarray(rows)
 
     def _columns(self, entity: str, index: list, values: np.ndarray) -> None:
         self.rec.send_columns(entity, indexes=index, columns=rr.Scalars.columns(scalars=np.asarray(values, np.float64)))
