@@ -33,7 +33,7 @@ class RecordingConfig:
     frame_every: int = 10
     frame_size: tuple[int, int] = (120, 160)
     frame_episodes: int = 1
-    frame_evals_every: int = 5
+    frame_evals_every: int = 10
     train_sample_every: int = 25
 
     MODES = ("off", "save", "spawn", "connect")
