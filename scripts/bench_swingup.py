@@ -12,8 +12,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import platform
 import subprocess
 import sys
 import time
@@ -67,8 +65,10 @@ def _last_step(run_dir: Path) -> int:
 
 
 def _steps_to(evals: pd.DataFrame, threshold: float) -> int | None:
-    hit = evals.loc[evals["episode_reward"] >= threshold, "step"]
-    return int(hit.iloc[0]) if len(hit) else None
+    from hrtc.benchmark.report import first_solve
+
+    i = first_solve(evals["episode_reward"].tolist(), threshold)
+    return None if i is None else int(evals["step"].iloc[i])
 
 
 def fixed_weights(weights: np.ndarray, episodes: int, seed: int) -> list[float]:
@@ -89,52 +89,23 @@ def fixed_weights(weights: np.ndarray, episodes: int, seed: int) -> list[float]:
 
 
 def sb3_run(seed: int, steps: int, eval_every: int, episodes: int, out: Path) -> dict:
-    """stable-baselines3 PPO with its default hyperparameters on the same gymnasium adapter and eval seeds."""
+    """stable-baselines3 PPO with its default hyperparameters on the same gymnasium adapter and eval seeds
+    (the benchmark harness's run, :func:`hrtc.benchmark.runs.sb3_train`)."""
     cache = out / f"sb3_ppo_seed{seed}.json"
     if cache.exists():
         return json.loads(cache.read_text())
-    import torch
-    from stable_baselines3 import PPO
+    from hrtc.benchmark.runs import RunSpec, sb3_train
 
-    import envs
-    from hrtc.trainer import eval_seeds
-
-    torch.set_num_threads(1)
-    env, eval_env = envs.make(TASK), envs.make(TASK)
-    env.reset(seed=seed)
-    model = PPO("MlpPolicy", env, seed=seed, device="cpu", verbose=0)
-    curve = {"step": [], "episode_reward": []}
-
-    def evaluate() -> float:
-        returns = []
-        for s in eval_seeds(seed, episodes):
-            obs, _ = eval_env.reset(seed=s)
-            total, done = 0.0, False
-            while not done:
-                action, _ = model.predict(obs, deterministic=True)
-                obs, reward, terminated, truncated, _ = eval_env.step(action)
-                total += reward
-                done = terminated or truncated
-            returns.append(total)
-        return float(np.mean(returns))
-
-    tic, train_seconds = time.perf_counter(), 0.0
-    curve["step"].append(0)
-    curve["episode_reward"].append(evaluate())
-    while model.num_timesteps < steps:
-        t0 = time.perf_counter()
-        model.learn(eval_every, reset_num_timesteps=False)
-        train_seconds += time.perf_counter() - t0
-        curve["step"].append(int(model.num_timesteps))
-        curve["episode_reward"].append(evaluate())
-    evals = pd.DataFrame(curve)
+    run_dir = ROOT / "runs" / "bench_swingup" / "sb3_ppo" / f"seed{seed}"  # its eval.csv (not committed)
+    curve = sb3_train(RunSpec(TASK, "sb3_ppo", seed, steps, eval_every, episodes, str(run_dir)))
+    evals = pd.DataFrame({"step": curve["step"], "episode_reward": curve["episode_reward"]})
     result = {
-        "curve": curve,
+        "curve": {"step": curve["step"], "episode_reward": curve["episode_reward"]},
         "final": curve["episode_reward"][-1],
         "best": max(curve["episode_reward"]),
         "steps_to_threshold": _steps_to(evals, THRESHOLD),
-        "sps_median": model.num_timesteps / train_seconds,
-        "wall_seconds": time.perf_counter() - tic,
+        "sps_median": curve["step"][-1] / curve["train_seconds"][-1],
+        "wall_seconds": curve["wall_seconds"][-1],
     }
     cache.write_text(json.dumps(result))
     return result
@@ -198,7 +169,9 @@ def write_report(results: dict, args: argparse.Namespace, command: str | None = 
     (out / "results.json").write_text(json.dumps(results, indent=1))
     if command is None:
         (out / "command.txt").write_text("python scripts/bench_swingup.py " + " ".join(sys.argv[1:]) + "\n")
-        (out / "machine.txt").write_text(_machine())
+        from hrtc.benchmark.report import machine_info
+
+        (out / "machine.txt").write_text(machine_info())
     lines = [
         f"# {TASK}: {results['steps']} env steps, seeds {results['seeds']}, threshold {THRESHOLD:.0f}",
         "",
@@ -278,15 +251,6 @@ def _plot(results: dict, path: Path) -> None:
     ax.legend(fontsize=7, loc="upper left")
     fig.tight_layout()
     fig.savefig(path, dpi=120)
-
-
-def _machine() -> str:
-    import torch
-
-    return (
-        f"{platform.platform()}; python {platform.python_version()}; {os.cpu_count()} cores; torch {torch.__version__};"
-        f" {platform.processor() or platform.machine()}; date {time.strftime('%Y-%m-%d')}\n"
-    )
 
 
 if __name__ == "__main__":

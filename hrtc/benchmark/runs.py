@@ -1,0 +1,307 @@
+"""One benchmark run of any algorithm: train for a budget of env steps, evaluate on a schedule, return a plain dict.
+
+Every algorithm is evaluated the same way: deterministic episodes (the distribution's mode: the Beta mean for HRTC,
+``predict(deterministic=True)`` for stable-baselines3) on the seeds :func:`hrtc.trainer.eval_seeds` gives, which are
+disjoint from the training seeds, after every ``eval_every`` env steps. The result holds the raw evaluation curve
+(env step, mean and std of the evaluation returns, training episodes so far, wall time); whether and when the run
+solved the task is decided afterwards, in :mod:`hrtc.benchmark.report`, so the solve rule can be re-applied to
+stored results.
+
+The result dict is JSON-serialisable: it travels back from a Ray worker or a pool process and is cached on disk.
+"""
+
+from __future__ import annotations
+
+import platform
+import time
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+from hrtc.errors import UnknownNameError
+
+# name -> (family, setting): "trainer" runs hrtc.trainer.Trainer with (algo, dist); "sb3" a stable-baselines3 class.
+ALGORITHMS: dict[str, tuple[str, tuple[str, str]]] = {
+    "hrtc_beta": ("trainer", ("hrtc", "beta")),
+    "hrtc_normal": ("trainer", ("hrtc", "normal")),
+    "ppo_beta": ("trainer", ("ppo", "beta")),
+    "ppo_normal": ("trainer", ("ppo", "normal")),
+    "sb3_ppo": ("sb3", ("PPO", "")),
+    "sb3_sac": ("sb3", ("SAC", "")),
+    "sb3_td3": ("sb3", ("TD3", "")),
+    "sb3_a2c": ("sb3", ("A2C", "")),
+}
+
+# What each algorithm runs with, for the table's notes (kept next to the code that does it).
+SETTINGS: dict[str, str] = {
+    "hrtc_beta": "HRTC, Beta weights: the task config's PPO settings and decision rate",
+    "hrtc_normal": "HRTC, Normal weights clipped to [0, 1]: the task config's PPO settings and decision rate",
+    "ppo_beta": "our PPO on raw actions, Beta head: the root config's PPO settings (not the task's HRTC-tuned ones)",
+    "ppo_normal": "our PPO on raw actions, Normal head: the root config's PPO settings",
+    "sb3_ppo": "stable-baselines3 PPO, default hyperparameters (MLP 64x64, 2,048-step rollouts)",
+    "sb3_sac": "stable-baselines3 SAC, defaults except actor and critics MLP 64x64 (the size of ours)",
+    "sb3_td3": "stable-baselines3 TD3, defaults except MLP 64x64 and Gaussian action noise of std 0.1 (TD3 paper)",
+    "sb3_a2c": "stable-baselines3 A2C, default hyperparameters (MLP 64x64, 5-step rollouts)",
+}
+
+CURVE_KEYS = ("step", "episode_reward", "episode_reward_std", "episodes", "wall_seconds", "solve_reward")
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """One (algorithm, seed) of a benchmark. ``run_dir`` receives the run's own files (CSVs, checkpoints) on the
+    machine that executes it; ``cpus`` is what the run may use (its Ray resource request)."""
+
+    task: str
+    algo: str
+    seed: int
+    steps: int
+    eval_every: int
+    eval_episodes: int
+    run_dir: str
+    cpus: int = 1
+    solve_threshold: float | None = None
+    solve_episodes: int = 0
+
+    def __post_init__(self) -> None:
+        if self.algo not in ALGORITHMS:
+            raise UnknownNameError("algorithm", self.algo, tuple(ALGORITHMS))
+
+    @property
+    def confirms(self) -> bool:
+        """Whether the solve rule averages more episodes than an evaluation runs (LunarLander: 200 over 100).
+
+        Then an evaluation whose mean reaches the threshold is a screen: the same policy runs the rule's remaining
+        episodes at once (the first ``eval_episodes`` seeds are shared), until one confirms. Running 100 episodes at
+        every evaluation would cost more than the training."""
+        return self.solve_threshold is not None and self.solve_episodes > self.eval_episodes
+
+    @property
+    def key(self) -> str:
+        """The run's name in results.json and its cache file: ``<algo>/seed<N>``."""
+        return f"{self.algo}/seed{self.seed}"
+
+
+def run(spec: RunSpec) -> dict[str, Any]:
+    """Train ``spec.algo`` for ``spec.steps`` env steps with evaluations on the schedule; returns the result dict."""
+    family, _ = ALGORITHMS[spec.algo]
+    Path(spec.run_dir).mkdir(parents=True, exist_ok=True)
+    tic = time.perf_counter()
+    curve = _trainer_run(spec) if family == "trainer" else _sb3_run(spec)
+    return {
+        **asdict(spec),
+        "env_steps": int(curve["step"][-1]),
+        "curve": curve,
+        "wall_seconds": time.perf_counter() - tic,
+        "settings": SETTINGS[spec.algo],
+        "host": platform.node(),
+    }
+
+
+# --------------------------------------------------------------------------------------------------- our trainer
+class _EvalCollector:
+    """A :class:`hrtc.logging.Sink` keeping the evaluation rows in memory (the same rows as eval.csv), and running
+    the solve rule's confirmation episodes on the trainer's current policy when an evaluation passes the screen."""
+
+    def __init__(self, spec: RunSpec) -> None:
+        self.spec = spec
+        self.trainer: Any = None  # set once the Trainer exists
+        self.curve: dict[str, list[Any]] = {k: [] for k in CURVE_KEYS}
+
+    def write(self, stream: str, step: int, metrics: Mapping[str, float]) -> None:
+        if stream != "eval":
+            return
+        self.curve["step"].append(int(step))
+        self.curve["episode_reward"].append(float(metrics["episode_reward"]))
+        self.curve["episode_reward_std"].append(float(metrics["episode_reward_std"]))
+        self.curve["episodes"].append(int(metrics["train_episodes"]))
+        self.curve["wall_seconds"].append(float(metrics["wall_seconds"]))
+        self.curve["solve_reward"].append(confirm_solve(self.spec, self.curve, self._returns))
+
+    def _returns(self, seeds: list[int]) -> np.ndarray:
+        from hrtc.trainer import evaluate
+
+        t = self.trainer
+        return evaluate(t.policy, t.normalizer, t.eval_env, seeds, t.cfg.dist)
+
+    def close(self) -> None:
+        pass
+
+
+def trainer_overrides(spec: RunSpec) -> list[str]:
+    """The Hydra overrides that make ``spec`` a :class:`~hrtc.trainer.RunConfig` (what ``scripts/train.py`` takes)."""
+    algo, dist = ALGORITHMS[spec.algo][1]
+    overrides = [
+        f"task={spec.task}", f"algo={algo}", f"dist={dist}", f"seed={spec.seed}", f"steps={spec.steps}",
+        f"eval_every={spec.eval_every}", f"eval_episodes={spec.eval_episodes}", "progress=false",
+        # One core: the envs step in this process. With more, each env (and its skills) gets its own process.
+        f"vector={'async' if spec.cpus > 1 else 'sync'}", f"torch_threads={max(1, spec.cpus // 2)}",
+        f"checkpoint_every={spec.steps}",  # the benchmark restarts unfinished runs: one checkpoint at the end suffices
+    ]  # fmt: skip
+    root = root_config()
+    if "logger" in root:
+        overrides.append("logger.mode=off")  # a Rerun recording with camera frames would cost more than the run
+    if algo == "ppo":
+        # A task's PPO block is tuned for HRTC; PPO on raw actions runs with the root config's settings.
+        overrides += [f"ppo.{key}={_hydra_value(value)}" for key, value in root["ppo"].items()]
+    return overrides
+
+
+def root_config() -> dict[str, Any]:
+    """The root config (``hrtc/conf/config.yaml``) as written, before any task overrides it."""
+    from omegaconf import OmegaConf
+
+    text = (resources.files("hrtc.conf") / "config.yaml").read_text()
+    return dict(OmegaConf.to_container(OmegaConf.create(text)))  # type: ignore[arg-type]
+
+
+def _hydra_value(value: Any) -> str:
+    if value is None:
+        return "null"
+    if isinstance(value, bool):
+        return str(value).lower()
+    return str(value)
+
+
+def _trainer_run(spec: RunSpec) -> dict[str, list[float]]:
+    from hydra import compose, initialize_config_module
+    from hydra.core.global_hydra import GlobalHydra
+    from omegaconf import OmegaConf
+
+    from hrtc.trainer import RunConfig, Trainer
+
+    GlobalHydra.instance().clear()
+    with initialize_config_module("hrtc.conf", version_base=None):
+        cfg = compose("config", overrides=trainer_overrides(spec))
+    GlobalHydra.instance().clear()
+    run_cfg = RunConfig.from_mapping(OmegaConf.to_container(cfg, resolve=True))  # type: ignore[arg-type]
+    (Path(spec.run_dir) / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
+    collector = _EvalCollector(spec)
+    trainer = Trainer(run_cfg, spec.run_dir, sinks=[collector])
+    collector.trainer = trainer
+    trainer.train()
+    return collector.curve
+
+
+def confirm_solve(spec: RunSpec, curve: Mapping[str, list[Any]], returns_of: Any) -> float | None:
+    """The solve rule's mean over ``spec.solve_episodes`` episodes for the evaluation just appended to ``curve``:
+    the evaluation's own mean when it already has that many episodes; computed (the remaining seeds) when it passes
+    the screen and no earlier evaluation confirmed; else None."""
+    from hrtc.trainer import eval_seeds
+
+    if not spec.confirms:
+        return curve["episode_reward"][-1]
+    if any(v is not None and v >= spec.solve_threshold for v in curve["solve_reward"]):
+        return None  # solved already: later evaluations only watch for a collapse
+    screen = curve["episode_reward"][-1]
+    if screen < spec.solve_threshold:  # type: ignore[operator]
+        return None
+    rest = eval_seeds(spec.seed, spec.solve_episodes)[spec.eval_episodes :]
+    extra = returns_of(rest)
+    return float((screen * spec.eval_episodes + extra.sum()) / spec.solve_episodes)
+
+
+# --------------------------------------------------------------------------------------------------- stable-baselines3
+class EpisodeCounter(gym.Wrapper):
+    """Counts finished training episodes (terminated or truncated), for the episodes axis of the curves."""
+
+    def __init__(self, env: gym.Env) -> None:
+        super().__init__(env)
+        self.episodes = 0
+
+    def step(self, action: Any) -> tuple[Any, float, bool, bool, dict]:
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        self.episodes += int(terminated or truncated)
+        return obs, reward, terminated, truncated, info
+
+
+def sb3_model(name: str, env: gym.Env, seed: int) -> Any:
+    """A stable-baselines3 model for benchmark algorithm ``name`` (``sb3_ppo``...) with the settings of SETTINGS."""
+    import stable_baselines3 as sb3
+    from stable_baselines3.common.noise import NormalActionNoise
+
+    cls_name = ALGORITHMS[name][1][0]
+    kwargs: dict[str, Any] = {}
+    if cls_name in ("SAC", "TD3"):
+        # SB3's off-policy default is 256x256 (2-5x slower here); the paper sizes every network like the PPO ones.
+        kwargs["policy_kwargs"] = {"net_arch": [64, 64]}
+    if cls_name == "TD3":
+        # SB3's TD3 has no exploration noise by default; 0.1 of the action range is the TD3 paper's setting.
+        dim = int(np.prod(env.action_space.shape))
+        half_range = (env.action_space.high - env.action_space.low) / 2
+        kwargs["action_noise"] = NormalActionNoise(np.zeros(dim), 0.1 * half_range)
+    return getattr(sb3, cls_name)("MlpPolicy", env, seed=seed, device="cpu", verbose=0, **kwargs)
+
+
+def sb3_evaluate(model: Any, env: gym.Env, seeds: list[int]) -> np.ndarray:
+    """Returns of one deterministic episode per seed."""
+    returns = []
+    for seed in seeds:
+        obs, _ = env.reset(seed=int(seed))
+        total, done = 0.0, False
+        while not done:
+            action, _ = model.predict(obs, deterministic=True)
+            obs, reward, terminated, truncated, _ = env.step(action)
+            total += float(reward)
+            done = terminated or truncated
+        returns.append(total)
+    return np.asarray(returns)
+
+
+def sb3_train(spec: RunSpec, env_kwargs: Mapping[str, Any] | None = None) -> dict[str, list[Any]]:
+    """Train stable-baselines3 algorithm ``spec.algo`` on ``spec.task``; returns its evaluation curve (CURVE_KEYS).
+
+    ``learn`` runs in chunks of ``eval_every`` steps; on-policy algorithms finish their last rollout, so an evaluation
+    may come a little after the chunk's end (SB3 PPO: the next multiple of 2,048)."""
+    import torch
+
+    import envs
+    from hrtc.trainer import eval_seeds
+
+    torch.set_num_threads(spec.cpus)
+    Path(spec.run_dir).mkdir(parents=True, exist_ok=True)
+    env = EpisodeCounter(envs.make(spec.task, **dict(env_kwargs or {})))
+    eval_env = envs.make(spec.task, **dict(env_kwargs or {}))
+    model = sb3_model(spec.algo, env, spec.seed)
+    seeds = eval_seeds(spec.seed, spec.eval_episodes)
+    curve: dict[str, list[Any]] = {k: [] for k in (*CURVE_KEYS, "train_seconds")}
+    tic, train_seconds = time.perf_counter(), 0.0
+
+    def record() -> None:
+        returns = sb3_evaluate(model, eval_env, seeds)
+        curve["step"].append(int(model.num_timesteps))
+        curve["episode_reward"].append(float(returns.mean()))
+        curve["episode_reward_std"].append(float(returns.std()))
+        curve["episodes"].append(env.episodes)
+        curve["wall_seconds"].append(time.perf_counter() - tic)
+        curve["train_seconds"].append(train_seconds)  # in learn() only: the training throughput
+        curve["solve_reward"].append(confirm_solve(spec, curve, lambda rest: sb3_evaluate(model, eval_env, rest)))
+        _write_csv(Path(spec.run_dir) / "eval.csv", curve)  # a run's progress, as the trainer's eval.csv shows it
+
+    record()
+    while model.num_timesteps < spec.steps:
+        t0 = time.perf_counter()
+        model.learn(min(spec.eval_every, spec.steps - model.num_timesteps), reset_num_timesteps=False)
+        train_seconds += time.perf_counter() - t0
+        record()
+    env.close()
+    eval_env.close()
+    return curve
+
+
+def _write_csv(path: Path, curve: Mapping[str, list[Any]]) -> None:
+    keys = list(curve)
+    rows = zip(*(curve[k] for k in keys), strict=True)
+    lines = [",".join(keys), *(",".join("" if v is None else str(v) for v in row) for row in rows)]
+    path.write_text("\n".join(lines) + "\n")
+
+
+def _sb3_run(spec: RunSpec) -> dict[str, list[float]]:
+    from hrtc.cli import task_config
+
+    return sb3_train(spec, task_config(spec.task).get("env_kwargs") or {})

@@ -1,0 +1,148 @@
+"""The paper's Table 1 and Fig. 2 for one task: every (algorithm, seed), run locally or on a Ray cluster.
+
+    python scripts/benchmark.py task=cartpole_swingup [algos=[hrtc_beta,ppo_beta,sb3_sac,...]] [seeds=5|[1,2,3]]
+        [budget=50000] [budgets.sb3_sac=N] [eval_every=N] [eval_episodes=N] [threshold=X] [solve_episodes=N]
+        [collapse_window=3]
+        [ray_address=ADDRESS] [backend=auto|ray|process] [cpus=N] [cpus_per_run=1]
+        [out=DIR] [runs_dir=DIR] [report_only=true] [progress=true]
+
+Writes into ``out`` (default ``benchmarks/results/benchmark_<task>``): results.json (every run's raw evaluation
+curve, rewritten after each finished run; runs already in it are skipped, so a killed benchmark continues),
+table.md, curves.png, command.txt, machine.txt. Training files of each run go to ``runs_dir`` (not committed).
+Several invocations with disjoint ``seeds`` may share one ``out`` (more runs in parallel); ``report_only=true``
+with all the seeds then writes the table of them all and prunes runs of other settings from results.json.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))  # run from a clone without installing
+
+from hrtc.cli import fail  # noqa: E402
+
+DEFAULTS: dict[str, Any] = {
+    "task": None,
+    "algos": ["hrtc_beta", "hrtc_normal", "ppo_beta", "ppo_normal", "sb3_ppo", "sb3_sac", "sb3_td3", "sb3_a2c"],
+    "seeds": 5,
+    "budget": 50_000,  # env steps per run
+    "budgets": {},  # per-algorithm budgets, e.g. budgets.sb3_sac=30000
+    "eval_every": None,  # default: budget / 10
+    "eval_episodes": None,  # episodes of each periodic evaluation (default: solve_episodes, at most 10)
+    "threshold": None,  # default: the task's solve_threshold
+    "solve_episodes": None,  # episodes the threshold is averaged over (default: the task's solve_episodes, else 3)
+    "collapse_window": 3,
+    "ray_address": None,
+    "backend": "auto",
+    "cpus": None,  # CPUs of the local Ray or process pool (default: all of this machine's)
+    "cpus_per_run": 1,
+    "out": None,
+    "runs_dir": None,
+    "report_only": False,
+    "progress": True,
+}
+
+
+def parse(argv: list[str]) -> dict[str, Any]:
+    """``key=value`` arguments (YAML values: lists as ``[a,b]``, dotted keys for ``budgets.<algo>``)."""
+    from omegaconf import OmegaConf
+    from omegaconf.errors import OmegaConfBaseException
+
+    bad = [a for a in argv if "=" not in a]
+    if bad:
+        fail(f"arguments look like key=value, got {bad[0]!r}; keys: {', '.join(DEFAULTS)}")
+    try:
+        given = OmegaConf.to_container(OmegaConf.from_dotlist(argv))
+    except OmegaConfBaseException as error:
+        fail(f"malformed argument: {str(error).splitlines()[0]}")
+    unknown = sorted(set(given) - set(DEFAULTS))  # type: ignore[arg-type]
+    if unknown:
+        fail(f"unknown key {unknown[0]!r}; keys: {', '.join(DEFAULTS)}")
+    return {**DEFAULTS, **given}  # type: ignore[dict-item]
+
+
+def main(argv: list[str]) -> int:
+    from hrtc.benchmark.dispatch import execute, is_same_run, load_results, save_results
+    from hrtc.benchmark.report import SolveRule, machine_info, write_report
+    from hrtc.benchmark.runs import ALGORITHMS, RunSpec
+    from hrtc.cli import task_config
+    from hrtc.errors import HRTCError
+
+    args = parse(argv)
+    if not args["task"]:
+        fail("task=<name> is required")
+    try:
+        task = task_config(str(args["task"]))
+    except HRTCError as error:
+        fail(str(error))
+    name = str(task["name"])
+    algos = list(args["algos"]) if isinstance(args["algos"], list) else [args["algos"]]
+    for algo in algos:
+        if algo not in ALGORITHMS:
+            fail(f"unknown algorithm {algo!r}; valid: {', '.join(ALGORITHMS)}")
+    seeds = list(range(1, int(args["seeds"]) + 1)) if isinstance(args["seeds"], int) else list(args["seeds"])
+    budget = int(args["budget"])
+    budgets = {a: int(args["budgets"].get(a, budget)) for a in algos}
+    eval_every = int(args["eval_every"] or max(1, budget // 10))
+    threshold = args["threshold"] if args["threshold"] is not None else task.get("solve_threshold")
+    if threshold is None:
+        fail(f"task {name!r} declares no solve_threshold: pass threshold=X")
+    solve_episodes = int(args["solve_episodes"] or task.get("solve_episodes") or 3)
+    episodes = int(args["eval_episodes"] or min(solve_episodes, 10))
+    rule = SolveRule(float(threshold), solve_episodes, int(args["collapse_window"]))
+    out = Path(args["out"] or ROOT / "benchmarks" / "results" / f"benchmark_{name}")
+    runs_dir = Path(args["runs_dir"] or ROOT / "runs" / "benchmark" / name)
+    cpus = int(args["cpus_per_run"])
+    specs = [
+        RunSpec(
+            name,
+            algo,
+            seed,
+            budgets[algo],
+            eval_every,
+            episodes,
+            str(runs_dir / algo / f"seed{seed}"),
+            cpus,
+            float(threshold),
+            solve_episodes,
+        )  # fmt: skip
+        for seed in seeds
+        for algo in algos  # seed-major: a benchmark stopped early has every algorithm on its first seeds
+    ]
+    meta = {"task": name, "budget": budget, "budgets": budgets, "eval_every": eval_every, "eval_episodes": episodes,
+            "seeds": seeds, "algos": algos, "rule": vars(rule)}  # fmt: skip
+    out.mkdir(parents=True, exist_ok=True)
+    results_path = out / "results.json"
+    errors: dict[str, str] = {}
+    if args["report_only"]:
+        stored = load_results(results_path)
+        runs = {s.key: stored[s.key] for s in specs if s.key in stored and is_same_run(stored[s.key], s)}
+    else:
+        # Written first: a benchmark stopped before its end still says how it was run.
+        (out / "command.txt").write_text("python scripts/benchmark.py " + " ".join(argv) + "\n")
+        (out / "machine.txt").write_text(machine_info())
+        try:
+            runs, errors = execute(specs, results_path, meta, args["backend"], args["ray_address"], args["cpus"],
+                                   bool(args["progress"]))  # fmt: skip
+        except HRTCError as error:
+            fail(str(error))
+    if not runs:
+        fail(f"no finished runs for these settings in {results_path}")
+    results = {**meta, "runs": runs}
+    if args["report_only"]:
+        # The file keeps exactly these settings' runs: runs of other settings (another budget...) are dropped.
+        save_results(results_path, runs, meta, merge=False)
+    print(write_report(results, out, rule))
+    missing = [s.key for s in specs if s.key not in runs]
+    if missing:
+        print(f"missing runs ({len(missing)}): {', '.join(missing)}", file=sys.stderr)
+    for key, error in errors.items():
+        print(f"failed {key}: {error}", file=sys.stderr)
+    return 1 if errors else 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main(sys.argv[1:]))

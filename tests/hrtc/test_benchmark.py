@@ -1,0 +1,204 @@
+"""The benchmark harness: statistics on known data, solve and collapse rules on constructed curves, and the real
+entry point end to end on a tiny budget through a local Ray (and once through the process pool)."""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hrtc.benchmark.report import (
+    Outcome,
+    SolveRule,
+    bootstrap_ci,
+    fastest_counts,
+    find_collapse,
+    first_solve,
+    headline,
+    iqm,
+    outcome,
+    summarize,
+)
+from hrtc.benchmark.runs import CURVE_KEYS, RunSpec, confirm_solve
+from hrtc.trainer import eval_seeds
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+# --------------------------------------------------------------------------------------------------- statistics
+def test_iqm_of_known_data() -> None:
+    assert iqm([1, 2, 3, 4, 5, 6, 7, 8]) == pytest.approx(4.5)  # drops 1, 2 and 7, 8
+    assert iqm([100, 1, 2, 3, 4]) == pytest.approx(3.0)  # n=5: one dropped at each end, order does not matter
+    assert iqm([7.0]) == 7.0
+    rng = np.random.default_rng(0)
+    x = rng.normal(size=41)
+    scipy_stats = pytest.importorskip("scipy.stats")
+    assert iqm(x) == pytest.approx(scipy_stats.trim_mean(x, 0.25))
+
+
+def test_iqm_is_robust_to_one_outlier_and_censoring() -> None:
+    base = [10.0, 11.0, 12.0, 13.0, 14.0]
+    assert iqm([*base[:-1], 1e9]) == pytest.approx(iqm(base))  # the largest value never enters
+    assert iqm([*base[:-1], math.inf]) == pytest.approx(12.0)  # one unsolved run of five: still finite
+    assert math.isinf(iqm([10.0, 11.0, 12.0, math.inf, math.inf]))  # two of five: the middle reaches it
+
+
+def test_bootstrap_ci_contains_the_estimate_and_shrinks_with_data() -> None:
+    rng = np.random.default_rng(1)
+    small, large = rng.exponential(1000, size=8), rng.exponential(1000, size=200)
+    for stat in (iqm, np.median):
+        for x in (small, large):
+            lo, hi = bootstrap_ci(x, stat, resamples=2000)
+            assert lo <= stat(x) <= hi
+        width = np.subtract(*bootstrap_ci(small, stat, resamples=2000)[::-1])
+        assert np.subtract(*bootstrap_ci(large, stat, resamples=2000)[::-1]) < width
+    assert bootstrap_ci([5.0] * 6, iqm) == (5.0, 5.0)
+
+
+def test_bootstrap_ci_keeps_censored_bounds_infinite_not_nan() -> None:
+    lo, hi = bootstrap_ci([1000.0, 2000.0, math.inf, math.inf, 3000.0], np.median)
+    assert math.isfinite(lo) and math.isinf(hi)
+
+
+def test_summary_mean_and_std_over_solved_runs_only() -> None:
+    s = summarize([1000.0, 3000.0, math.inf], collapses=1)
+    assert (s.solved, s.collapses) == (2, 1)
+    assert s.mean == pytest.approx(2000.0) and s.std == pytest.approx(np.std([1000, 3000], ddof=1))
+    assert s.median == 3000.0
+
+
+# --------------------------------------------------------------------------------------------------- solve rules
+def test_first_solve_and_collapse_on_a_constructed_curve() -> None:
+    curve = [0, 500, 810, 790, 780, 770, 820]
+    assert first_solve(curve, 800) == 2
+    assert find_collapse(curve, 800, window=3) == 5  # 790, 780, 770: the third one below completes the window
+    assert find_collapse(curve, 800, window=4) is None  # recovered at 820 before four
+    assert find_collapse([0, 810, 790, 805, 790, 795, 801], 800, window=3) is None  # dips never last three
+    assert find_collapse([0, 100, 790, 780, 770], 800, window=1) is None  # never solved: nothing to collapse from
+    assert find_collapse([900, 100], 800, window=1) == 1
+
+
+def test_outcome_reads_steps_episodes_and_wall_time_at_the_solving_evaluation() -> None:
+    result = {
+        "curve": {
+            "step": [0, 5000, 10000, 15000, 20000],
+            "episode_reward": [10.0, 400.0, 850.0, 700.0, 690.0],
+            "episodes": [0, 5, 10, 15, 20],
+            "wall_seconds": [1.0, 5.0, 9.0, 13.0, 17.0],
+        }
+    }
+    o = outcome(result, SolveRule(800.0, 3, collapse_window=2))
+    assert (o.solved_step, o.solved_episode, o.solved_wall) == (10000, 10, 9.0)
+    assert o.collapse_step == 20000 and o.collapsed
+    assert (o.final, o.best) == (690.0, 850.0)
+    assert not outcome(result, SolveRule(900.0, 3)).solved
+
+
+def test_screened_solve_rule_confirms_once_and_decides_on_the_long_mean() -> None:
+    # LunarLander's rule: 200 over 100 episodes; evaluations run 10, a passing one runs the other 90 at once.
+    spec = RunSpec("lunarlander", "sb3_a2c", 1, 100, 10, 10, "unused", 1, solve_threshold=200.0, solve_episodes=100)
+    calls: list[list[int]] = []
+
+    def returns_of(seeds: list[int]) -> np.ndarray:
+        calls.append(list(seeds))
+        return np.full(len(seeds), 195.0 if len(calls) == 1 else 200.0)
+
+    curve: dict[str, list] = {k: [] for k in CURVE_KEYS}
+    for screen in (150.0, 240.0, 210.0, 230.0):
+        curve["episode_reward"].append(screen)
+        curve["solve_reward"].append(confirm_solve(spec, curve, returns_of))
+    # 150 fails the screen; 240 passes but (10 x 240 + 90 x 195) / 100 = 199.5 does not confirm; 210 confirms
+    # (10 x 210 + 90 x 200) / 100 = 201; after that no more confirmation runs.
+    assert curve["solve_reward"] == [None, pytest.approx(199.5), pytest.approx(201.0), None]
+    assert calls == [eval_seeds(1, 100)[10:]] * 2
+    result = {"curve": {**curve, "step": [0, 10, 20, 30], "episodes": [0, 1, 2, 3], "wall_seconds": [0, 1, 2, 3]}}
+    assert outcome(result, SolveRule(200.0, 100)).solved_step == 20  # not 10, where only the screen passed
+
+
+def test_fastest_counts_share_ties_and_skip_unsolved_seeds() -> None:
+    costs = {"a": {1: 100.0, 2: 300.0, 3: math.inf}, "b": {1: 200.0, 2: 300.0, 3: math.inf}}
+    assert fastest_counts(costs) == {"a": 2, "b": 1}
+
+
+def _outcomes(steps: dict[str, list[float | None]]) -> dict[str, dict[int, Outcome]]:
+    return {
+        algo: {i + 1: Outcome(s, None if s is None else int(s // 1000), None, None, 0.0, 0.0) for i, s in enumerate(xs)}
+        for algo, xs in steps.items()
+    }
+
+
+def test_headline_says_where_hrtc_does_not_win() -> None:
+    wins = _outcomes({"hrtc_beta": [1000, 1100, 1200], "sb3_sac": [2000, 5000, None]})
+    assert "Headline holds" in "\n".join(headline(wins))
+    loses = _outcomes({"hrtc_beta": [3000, 3100, 2900], "sb3_sac": [1000, 1500, 1200], "ppo_beta": [None] * 3})
+    text = "\n".join(headline(loses))
+    assert "does not fully hold" in text and "SB3 SAC" in text.split("Not against:")[1]
+    assert "PPO Beta" in text.split("Not against:")[0]  # faster than the one that never solved
+    # Both with infinite IQMs (n=3, one unsolved each) but a better median: faster, yet no spread to compare.
+    tie = "\n".join(headline(_outcomes({"hrtc_beta": [1000, 1100, None], "ppo_beta": [5000, None, None]})))
+    assert "does not fully hold" in tie and "PPO Beta" in tie.split("Not against:")[1]
+
+
+# --------------------------------------------------------------------------------------------------- end to end
+def _bench(tmp_path: Path, *extra: str) -> subprocess.CompletedProcess:
+    cmd = [sys.executable, str(ROOT / "scripts" / "benchmark.py"), "task=cartpole_swingup", "budget=400",
+           "eval_every=200", "eval_episodes=1", "threshold=50", "cpus=2", "progress=false",
+           f"out={tmp_path / 'out'}", f"runs_dir={tmp_path / 'runs'}", *extra]  # fmt: skip
+    return subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, timeout=300)
+
+
+def test_benchmark_end_to_end_through_a_local_ray(tmp_path: Path) -> None:
+    pytest.importorskip("ray")
+    proc = _bench(tmp_path, "algos=[ppo_beta,sb3_a2c]", "seeds=2", "backend=ray")
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert "4 to run (ray)" in proc.stdout
+    out = tmp_path / "out"
+    results = json.loads((out / "results.json").read_text())
+    assert sorted(results["runs"]) == ["ppo_beta/seed1", "ppo_beta/seed2", "sb3_a2c/seed1", "sb3_a2c/seed2"]
+    for run in results["runs"].values():
+        steps = run["curve"]["step"]
+        assert steps[0] == 0 and steps[-1] >= 400 and np.all(np.diff(steps) > 0)
+        assert np.all(np.isfinite(run["curve"]["episode_reward"]))
+        assert len(run["curve"]["episodes"]) == len(steps) and run["curve"]["episodes"][-1] == 0  # 1000-step episodes
+        assert run["wall_seconds"] > 0 and Path(run["run_dir"]).exists()
+    # Each seed trained its own policy: the two seeds' curves differ.
+    assert results["runs"]["sb3_a2c/seed1"]["curve"] != results["runs"]["sb3_a2c/seed2"]["curve"]
+    table = (out / "table.md").read_text()
+    assert "| seed | PPO Beta | SB3 A2C |" in table and "IQM [95% CI]" in table and "## Headline" in table
+    assert (out / "curves.png").stat().st_size > 10_000
+    summary = json.loads((out / "summary.json").read_text())  # the table's numbers, read back
+    assert set(summary["runs"]) == set(results["runs"]) and set(summary["algorithms"]) == {"ppo_beta", "sb3_a2c"}
+
+
+def test_benchmark_in_a_process_pool_skips_finished_runs(tmp_path: Path) -> None:
+    proc = _bench(tmp_path, "algos=[sb3_a2c]", "seeds=2", "backend=process")
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert "2 to run (process)" in proc.stdout
+    path = tmp_path / "out" / "results.json"
+    results = json.loads(path.read_text())
+    assert results["runs"]["sb3_a2c/seed1"]["curve"]["step"][-1] >= 400
+    # A killed benchmark continues: drop one finished run, and only that one runs again.
+    kept = results["runs"]["sb3_a2c/seed1"]
+    del results["runs"]["sb3_a2c/seed2"]
+    path.write_text(json.dumps(results))
+    proc = _bench(tmp_path, "algos=[sb3_a2c]", "seeds=2", "backend=process")
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert "1 already in" in proc.stdout and "1 to run" in proc.stdout
+    again = json.loads(path.read_text())
+    assert again["runs"]["sb3_a2c/seed1"] == kept  # skipped, not re-run
+    assert sorted(again["runs"]) == ["sb3_a2c/seed1", "sb3_a2c/seed2"]
+
+
+def test_benchmark_rejects_bad_arguments_in_one_line(tmp_path: Path) -> None:
+    proc = _bench(tmp_path, "algos=[hrtc_beta,sac]")
+    assert proc.returncode == 2 and proc.stderr.strip() == (
+        "error: unknown algorithm 'sac'; valid: hrtc_beta, hrtc_normal, ppo_beta, ppo_normal, sb3_ppo, sb3_sac, "
+        "sb3_td3, sb3_a2c"
+    )
+    proc = _bench(tmp_path, "seedz=3")
+    assert proc.returncode == 2 and proc.stderr.startswith("error: unknown key 'seedz'")
