@@ -119,20 +119,12 @@ def train_run(name: str, overrides: list[str], run_dir: Path, seed: int, args: a
 # --------------------------------------------------------------------------------------------------- fixed blends
 def fixed_weights(weights: np.ndarray, seeds: list[int]) -> list[float]:
     """Returns of the composed task under constant skill weights (a skill alone, or a fixed blend)."""
-    from hrtc.trainer import make_env
+    from hrtc.trainer import Decision, make_env, run_episodes
 
     cfg = _task_config()
     env = make_env(TASK, "hrtc", cfg["skills"], env_kwargs=cfg.get("env_kwargs"))
-    returns = []
-    for s in seeds:
-        env.reset(seed=s)
-        total, done = 0.0, False
-        while not done:
-            _, reward, terminated, truncated, _ = env.step(weights)
-            total += reward
-            done = terminated or truncated
-        returns.append(total)
-    return returns
+    action = np.asarray(weights, dtype=np.float32)
+    return run_episodes(env, lambda obs: Decision(obs, action, action), seeds).tolist()
 
 
 def gymnasium_heuristic(seeds: list[int]) -> list[float]:

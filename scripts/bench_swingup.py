@@ -73,19 +73,11 @@ def _steps_to(evals: pd.DataFrame, threshold: float) -> int | None:
 
 def fixed_weights(weights: np.ndarray, episodes: int, seed: int) -> list[float]:
     """Returns of the composed task under constant skill weights (a skill alone, or a fixed blend)."""
-    from hrtc.trainer import eval_seeds, make_env
+    from hrtc.trainer import Decision, eval_seeds, make_env, run_episodes
 
     env = make_env(TASK, "hrtc", _task_config()["skills"])
-    returns = []
-    for s in eval_seeds(seed, episodes):
-        env.reset(seed=s)
-        total, done = 0.0, False
-        while not done:
-            _, reward, terminated, truncated, _ = env.step(weights)
-            total += reward
-            done = terminated or truncated
-        returns.append(total)
-    return returns
+    action = np.asarray(weights, dtype=np.float32)
+    return run_episodes(env, lambda obs: Decision(obs, action, action), eval_seeds(seed, episodes)).tolist()
 
 
 def sb3_run(seed: int, steps: int, eval_every: int, episodes: int, out: Path) -> dict:
