@@ -50,7 +50,9 @@ SCRIPTED = "handover rule (hand-written)"
 
 def train_run(algo: str, seed: int, steps: int, run_dir: Path) -> dict[str, Any]:
     """Train with the CLI unless ``run_dir`` already reached ``steps``; returns its eval curve and throughput."""
-    if _last_step(run_dir) < steps:
+    from hrtc.benchmark.runs import last_eval_step
+
+    if last_eval_step(run_dir) < steps:
         cmd = [sys.executable, str(ROOT / "scripts" / "train.py"), f"task={TASK}", f"algo={algo}", "dist=beta",
                f"seed={seed}", f"steps={steps}", "progress=false", f"hydra.run.dir={run_dir}"]  # fmt: skip
         tic = time.perf_counter()
@@ -65,13 +67,6 @@ def train_run(algo: str, seed: int, steps: int, run_dir: Path) -> dict[str, Any]
         "sps_median": float(train["charts/SPS"].median()),
         "wall_seconds": float(evals["wall_seconds"].iloc[-1]),
     }
-
-
-def _last_step(run_dir: Path) -> int:
-    try:
-        return int(pd.read_csv(run_dir / "eval.csv")["step"].iloc[-1])
-    except Exception:  # noqa: BLE001  (a missing or empty file means: not run yet)
-        return -1
 
 
 # --------------------------------------------------------------------------------------------------- evaluation

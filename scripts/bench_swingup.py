@@ -39,7 +39,9 @@ THRESHOLD = float(_task_config()["solve_threshold"])  # the task's own solve rul
 
 def train_run(name: str, overrides: list[str], run_dir: Path, steps: int, eval_every: int) -> dict:
     """Run scripts/train.py; returns its eval curve and throughput."""
-    if not (run_dir / "eval.csv").exists() or _last_step(run_dir) < steps:
+    from hrtc.benchmark.runs import last_eval_step
+
+    if last_eval_step(run_dir) < steps:
         cmd = [sys.executable, str(ROOT / "scripts" / "train.py"), f"task={TASK}", f"steps={steps}",
                f"eval_every={eval_every}", "progress=false", f"hydra.run.dir={run_dir}", *overrides]  # fmt: skip
         tic = time.perf_counter()
@@ -55,13 +57,6 @@ def train_run(name: str, overrides: list[str], run_dir: Path, steps: int, eval_e
         "rollout_sps_median": float(train["charts/rollout_SPS"].median()),
         "wall_seconds": float(evals["wall_seconds"].iloc[-1]),
     }
-
-
-def _last_step(run_dir: Path) -> int:
-    try:
-        return int(pd.read_csv(run_dir / "eval.csv")["step"].iloc[-1])
-    except Exception:  # noqa: BLE001  (a missing or empty file means: not run yet)
-        return -1
 
 
 def _steps_to(evals: pd.DataFrame, threshold: float) -> int | None:

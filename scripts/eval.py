@@ -36,7 +36,14 @@ def main(argv: list[str]) -> None:
 def run(opts: dict) -> str:
     import numpy as np
 
-    from hrtc.logging.trace import RecordingConfig, TraceCollector, skill_statistics, weight_summary
+    from hrtc.logging.trace import (
+        RecordingConfig,
+        TraceCollector,
+        format_returns,
+        format_skill_statistics,
+        skill_statistics,
+        weight_summary,
+    )
     from hrtc.trainer import eval_seeds, evaluate, frame_source, load_policy, make_env
 
     path = Path(str(opts["checkpoint"]))
@@ -70,8 +77,7 @@ def run(opts: dict) -> str:
         if recorder is not None:
             recorder.close()
     lines = [f"{path}: {meta['algo']}-{meta['dist']} on {meta['task']}",
-             f"returns over {episodes} episodes: {returns.mean():.1f} ± {returns.std():.1f} "
-             f"(min {returns.min():.1f}, max {returns.max():.1f})",
+             format_returns(returns),
              "per episode: " + " ".join(f"{r:.1f}" for r in returns)]  # fmt: skip
     if meta["algo"] == "hrtc":
         weights = np.concatenate([np.asarray(t.weights) for t in collector.traces])
@@ -85,14 +91,6 @@ def run(opts: dict) -> str:
     if recorder is not None:
         lines.append(f"recording: {recorder.path}")
     return "\n".join(lines)
-
-
-def format_skill_statistics(stats: dict) -> list[str]:
-    lines = ["skill      decisions  median ms   p99 ms  failures  faults"]
-    for name, s in stats.items():
-        lines.append(f"{name:<10} {s['decisions']:>9.0f}  {s['median_ms']:>9.3f}  {s['p99_ms']:>7.3f}  "
-                     f"{s['failures']:>8.0f}  {s['faults']:>6.0f}")  # fmt: skip
-    return lines
 
 
 if __name__ == "__main__":

@@ -38,7 +38,13 @@ def run(opts: dict) -> str:
 
     from hrtc.cli import task_config
     from hrtc.errors import ConfigError, UnknownNameError
-    from hrtc.logging.trace import RecordingConfig, TraceCollector, skill_statistics
+    from hrtc.logging.trace import (
+        RecordingConfig,
+        TraceCollector,
+        format_returns,
+        format_skill_statistics,
+        skill_statistics,
+    )
     from hrtc.trainer import Decision, eval_seeds, frame_source, make_env, run_episodes
     from hrtc.tree import describe
 
@@ -91,13 +97,9 @@ def run(opts: dict) -> str:
         if recorder is not None:
             recorder.close()
     lines = [f"{task['name']}: {label} (weights {dict(zip(names, weights.round(3).tolist(), strict=True))})",
-             f"returns over {episodes} episodes: {returns.mean():.1f} ± {returns.std():.1f} "
-             f"(min {returns.min():.1f}, max {returns.max():.1f})",
-             "skill        steps  median ms   p99 ms  failures  faults"]  # fmt: skip
-    for name, s in skill_statistics(collector.traces).items():
-        if weights[names.index(name)] != 0.0:
-            lines.append(f"{name:<10} {s['decisions']:>7.0f}  {s['median_ms']:>9.3f}  {s['p99_ms']:>7.3f}  "
-                         f"{s['failures']:>8.0f}  {s['faults']:>6.0f}")  # fmt: skip
+             format_returns(returns)]  # fmt: skip
+    used = [name for name, w in zip(names, weights, strict=True) if w != 0.0]
+    lines += format_skill_statistics(skill_statistics(collector.traces), only=used)
     if recorder is not None:
         lines.append(f"recording: {recorder.path}")
     return "\n".join(lines)

@@ -305,3 +305,13 @@ def _sb3_run(spec: RunSpec) -> dict[str, list[float]]:
     from hrtc.cli import task_config
 
     return sb3_train(spec, task_config(spec.task).get("env_kwargs") or {})
+
+
+def last_eval_step(run_dir: Path) -> int:
+    """The step of a training run's last evaluation row, -1 if it has none yet (a benchmark's skip-if-done test)."""
+    import pandas as pd
+
+    try:
+        return int(pd.read_csv(Path(run_dir) / "eval.csv")["step"].iloc[-1])
+    except (OSError, IndexError, KeyError, ValueError, pd.errors.EmptyDataError):  # missing, empty or cut short
+        return -1

@@ -203,3 +203,19 @@ def skill_statistics(traces: Sequence[EpisodeTrace]) -> dict[str, dict[str, floa
             "faults": float(np.sum(diagnostics.get("fault", []))),
         }
     return out
+
+
+def format_returns(returns: np.ndarray) -> str:
+    """``returns over N episodes: mean ± std (min, max)``."""
+    return (f"returns over {len(returns)} episodes: {returns.mean():.1f} ± {returns.std():.1f} "
+            f"(min {returns.min():.1f}, max {returns.max():.1f})")  # fmt: skip
+
+
+def format_skill_statistics(stats: Mapping[str, Mapping[str, float]], only: Sequence[str] | None = None) -> list[str]:
+    """:func:`skill_statistics` as text lines, one per skill (those in ``only`` when given)."""
+    lines = ["skill      decisions  median ms   p99 ms  failures  faults"]
+    for name, s in stats.items():
+        if only is None or name in only:
+            lines.append(f"{name:<10} {s['decisions']:>9.0f}  {s['median_ms']:>9.3f}  {s['p99_ms']:>7.3f}  "
+                         f"{s['failures']:>8.0f}  {s['faults']:>6.0f}")  # fmt: skip
+    return lines
