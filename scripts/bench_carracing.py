@@ -174,6 +174,7 @@ def write_report(results: dict, args: argparse.Namespace, command: str) -> None:
         "",
         "Projected hours: the paper's episodes-to-solve (Table 1 mean) x 1000 frames at this run's measured "
         "frames/s (training and evaluation, two env workers, PPO updates included) on this shared machine.",
+        *(f"\n{note}" for note in results.get("notes", [])),
         "",
         "![curves](curves.png)",
     ]
@@ -236,13 +237,17 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "carracing")
     parser.add_argument("--report-only", action="store_true", help="summarise existing runs in --out")
+    parser.add_argument("--note", action="append", default=[], help="a note for table.md (repeatable; kept by "
+                        "later --report-only calls)")  # fmt: skip
     args = parser.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     command = "python scripts/bench_carracing.py " + " ".join(sys.argv[1:])
     if not args.report_only:
         run_all(args)
     runs = {name: summarise(name, args.out / "runs" / name, args.seed, args.minutes) for name in RUNS}
-    results = {"seed": args.seed, "minutes": args.minutes, "runs": runs}
+    previous = args.out / "results.json"
+    notes = json.loads(previous.read_text()).get("notes", []) if args.report_only and previous.exists() else []
+    results = {"seed": args.seed, "minutes": args.minutes, "runs": runs, "notes": notes + args.note}
     write_report(results, args, command)
     print((args.out / "table.md").read_text())
 
