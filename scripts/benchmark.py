@@ -117,13 +117,13 @@ def main(argv: list[str]) -> int:
     out.mkdir(parents=True, exist_ok=True)
     results_path = out / "results.json"
     errors: dict[str, str] = {}
+    with (out / "command.txt").open("a") as handle:  # every invocation: a resumed benchmark's runs come from several
+        handle.write("python scripts/benchmark.py " + " ".join(argv) + "\n")
     if args["report_only"]:
         stored = load_results(results_path)
         runs = {s.key: stored[s.key] for s in specs if s.key in stored and is_same_run(stored[s.key], s)}
     else:
-        # Written first: a benchmark stopped before its end still says how it was run.
-        (out / "command.txt").write_text("python scripts/benchmark.py " + " ".join(argv) + "\n")
-        (out / "machine.txt").write_text(machine_info())
+        (out / "machine.txt").write_text(machine_info())  # first: a benchmark stopped early still says where it ran
         try:
             runs, errors = execute(specs, results_path, meta, args["backend"], args["ray_address"], args["cpus"],
                                    bool(args["progress"]))  # fmt: skip

@@ -299,6 +299,21 @@ def headline(
         lines.append(f"**Headline does not fully hold.** {ref_label} is faster (median and IQM) with a smaller "
                      f"spread than: {', '.join(wins) or 'none'}.")  # fmt: skip
         lines.append(f"Not against: {', '.join(losses)}.")
+    return lines + untrained_solutions(outcomes)
+
+
+def untrained_solutions(outcomes: Mapping[str, Mapping[int, Outcome]]) -> list[str]:
+    """A line per algorithm with runs that met the rule at env step 0, before any update: their steps-to-solve
+    measure the starting policy (for HRTC: the skill library at the initial weights), not learning."""
+    lines = []
+    for algo, per_seed in outcomes.items():
+        at_start = sorted(seed for seed, o in per_seed.items() if o.solved_step == 0)
+        if at_start:
+            lines.append(
+                f"{LABELS.get(algo, algo)}: {len(at_start)} of {len(per_seed)} runs (seed{'s' * (len(at_start) > 1)} "
+                f"{', '.join(map(str, at_start))}) met the rule at step 0, before any update: for them the table "
+                "measures the starting policy, not learning."
+            )
     return lines
 
 
@@ -453,7 +468,8 @@ def machine_info() -> str:
 
     line = (
         f"{platform.platform()}; python {platform.python_version()}; {os.cpu_count()} cores; torch {torch.__version__};"
-        f" {platform.processor() or platform.machine()}; date {time.strftime('%Y-%m-%d')}"
+        f" {platform.processor() or platform.machine()}; date {time.strftime('%Y-%m-%d %H:%M')}; load average"
+        f" {os.getloadavg()[0]:.1f} at the start"
     )
     try:
         import ray

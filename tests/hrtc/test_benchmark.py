@@ -144,6 +144,13 @@ def test_headline_says_where_hrtc_does_not_win() -> None:
     assert "does not fully hold" in tie and "PPO Beta" in tie.split("Not against:")[1]
 
 
+def test_headline_names_runs_that_met_the_rule_before_any_update() -> None:
+    text = "\n".join(headline(_outcomes({"hrtc_beta": [0, 4000, 0], "ppo_beta": [8000, None, None]})))
+    assert "HRTC Beta: 2 of 3 runs (seeds 1, 3) met the rule at step 0" in text
+    assert "PPO Beta:" not in text.split("Headline holds")[-1]
+    assert "step 0" not in "\n".join(headline(_outcomes({"hrtc_beta": [1000], "ppo_beta": [2000]})))
+
+
 # --------------------------------------------------------------------------------------------------- end to end
 def _bench(tmp_path: Path, *extra: str) -> subprocess.CompletedProcess:
     cmd = [sys.executable, str(ROOT / "scripts" / "benchmark.py"), "task=cartpole_swingup", "budget=400",
@@ -191,6 +198,8 @@ def test_benchmark_in_a_process_pool_skips_finished_runs(tmp_path: Path) -> None
     assert "1 already in" in proc.stdout and "1 to run" in proc.stdout
     again = json.loads(path.read_text())
     assert again["runs"]["sb3_a2c/seed1"] == kept  # skipped, not re-run
+    commands = (tmp_path / "out" / "command.txt").read_text().splitlines()
+    assert len(commands) == 2 and all(c.startswith("python scripts/benchmark.py task=") for c in commands)
     assert sorted(again["runs"]) == ["sb3_a2c/seed1", "sb3_a2c/seed2"]
 
 
