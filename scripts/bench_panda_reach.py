@@ -6,7 +6,8 @@ joint velocities at the same env-step budget, each skill alone, and a hand-writt
 
 Training runs are the real CLI (``scripts/train.py task=panda_reach``) in a subprocess, skipped when ``--runs`` already
 holds a run that reached ``--steps``; the learned policies are evaluated from their ``best.pt`` (chosen on the
-trainer's own evaluation seeds, disjoint from the test seeds) with the distribution's mean.
+trainer's own evaluation seeds, disjoint from the test seeds; ``--checkpoint last``: ``last.pt``) with the
+distribution's mean.
 
 Test episodes reset with seeds 2_000_000 + i (training resets use 1000 seed + i and continue from there; the
 trainer's evaluations use 1_000_000 + ...): the same 1000 targets for every method. An episode counts as a success
@@ -43,6 +44,7 @@ FIXED = {  # weights in the task's skill order (reach, posture, avoid, hold)
     "avoid alone": [0.0, 0.0, 1.0, 0.0],
     "hold alone": [0.0, 0.0, 0.0, 1.0],
     "uniform blend (1/4 each)": [0.25, 0.25, 0.25, 0.25],
+    "untrained HRTC (every weight at the initial Beta mean, 0.5)": [0.5, 0.5, 0.5, 0.5],
     "constant blend reach + avoid (1, 1)": [1.0, 0.0, 1.0, 0.0],
 }
 SCRIPTED = "handover rule (hand-written)"
@@ -166,12 +168,17 @@ def main() -> None:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "panda_reach")
     parser.add_argument("--methods", nargs="*", default=None, help="evaluate only these (names as in table.md)")
+    parser.add_argument("--checkpoint", choices=("best", "last"), default="best", help="the learned runs' "
+                        "checkpoint: best.pt (chosen on the trainer's evaluations) or last.pt")  # fmt: skip
     args = parser.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
 
     learned = {"hrtc": "HRTC (Beta), learned", "ppo": "PPO (Beta) on raw joint velocities"}
     methods: dict[str, str | None] = {
-        **{name: str(args.runs / f"{algo}_s{args.seed}" / "checkpoints" / "best.pt") for algo, name in learned.items()},
+        **{
+            name: str(args.runs / f"{algo}_s{args.seed}" / "checkpoints" / f"{args.checkpoint}.pt")
+            for algo, name in learned.items()
+        },
         **{name: None for name in FIXED},
         SCRIPTED: None,
     }
@@ -220,7 +227,7 @@ def table(results: dict[str, Any], training: dict[str, Any], args: argparse.Name
         "",
         f"Success: the end effector within 1 cm of the target within the 3 s episode. Collisions: the arm touched "
         f"the wall or the table before reaching. Time: mean over the successful episodes. Learned policies: "
-        f"{args.steps} env steps, seed {args.seed}, `best.pt`, deterministic (the Beta mean).",
+        f"{args.steps} env steps, seed {args.seed}, `{args.checkpoint}.pt`, deterministic (the Beta mean).",
         "",
         "| method | success | collisions | success without collision | mean time to reach (s) |"
         " success free / limit / behind |",

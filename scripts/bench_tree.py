@@ -15,6 +15,7 @@ Phases (each training run is the real ``Trainer``; a finished run directory is r
   side.
 - ``ratewall``: wall time of k = 1, 2, 5 side by side: 10k-step runs alternating k1, k2, k5, twice.
 - ``extend``: the tree runs of (a) continued to ``--steps`` (e.g. 100000) from their last checkpoint.
+- ``extend_transfer``: the runs of (b) (fine-tuned and from scratch) continued to ``--steps`` likewise.
 - ``report``: table.md, results.json, curves.png, tree.txt, tree_weights.png/csv, command.txt and machine.txt.
 """
 
@@ -39,7 +40,7 @@ sys.path.insert(0, str(ROOT))
 OUT = ROOT / "benchmarks" / "results" / "tree_transfer"
 SKILLS_DIR = OUT / "skills"
 RUNS = ROOT / "runs" / "bench_tree"
-PHASES = ("pretrain", "tree", "transfer", "rate", "ratewall", "extend", "report")
+PHASES = ("pretrain", "tree", "transfer", "rate", "ratewall", "extend", "extend_transfer", "report")
 RATES = (1, 2, 5)
 PRETRAIN_STEPS = 20_000
 THRESHOLD = 800.0  # the cart-pole swing-up tasks' solve_threshold
@@ -151,14 +152,15 @@ def extend(seeds: list[int], steps: int) -> dict:
                                                 [f"steps={steps}", f"seed={s}"]) for s in seeds}}  # fmt: skip
 
 
-def transfer(seeds: list[int], steps: int) -> dict:
+def transfer(seeds: list[int], steps: int, suffix: str = "") -> dict:
+    """(b): fine-tuned against from scratch; ``suffix`` names the groups of runs continued to a longer budget."""
     source = SKILLS_DIR / "swingup_source.pt"
-    out: dict[str, dict] = {"finetune_long": {}, "scratch_long": {}}
+    out: dict[str, dict] = {f"finetune_long{suffix}": {}, f"scratch_long{suffix}": {}}
     for s in seeds:
         common = [f"steps={steps}", f"seed={s}"]
-        out["finetune_long"][f"seed{s}"] = train(RUNS / "finetune_long" / f"seed{s}", "cartpole_swingup_long",
-                                                 common, init_from=source)  # fmt: skip
-        out["scratch_long"][f"seed{s}"] = train(RUNS / "scratch_long" / f"seed{s}", "cartpole_swingup_long", common)
+        task = "cartpole_swingup_long"
+        out[f"finetune_long{suffix}"][f"seed{s}"] = train(RUNS / "finetune_long" / f"seed{s}", task, common, source)
+        out[f"scratch_long{suffix}"][f"seed{s}"] = train(RUNS / "scratch_long" / f"seed{s}", task, common)
     return out
 
 
@@ -245,20 +247,21 @@ def report(results: dict, seeds: list[int], steps: int) -> None:
                          f"| {run['initial']:.0f} | {run['best']:.0f} |")  # fmt: skip
         lines.append("")
 
-    def block(title: str, groups: dict[str, dict], ratio_of: tuple[str, str] | None = None) -> None:
+    def block(title: str, groups: dict[str, dict], *ratios: tuple[str, str]) -> None:
         nonlocal lines
         thresholds = (THRESHOLD, LOWER_THRESHOLD)
         lines += [f"## {title}", "", "| run | task | return at 0 | final per seed | best per seed "
                   "| mean over the run | steps to 800 per seed | steps to 600 per seed | wall s (median) "
                   "| train env steps/s (median) |", "|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
         medians: dict[str, list[float]] = {}
+        budgets: dict[str, int] = {}
         for name, runs in groups.items():
             if not runs:
                 continue
             vals = list(runs.values())
             hits = [[_first_at(r["curve"], th) for r in vals] for th in thresholds]
             medians[name] = [_median([np.inf if h is None else h for h in hs]) for hs in hits]
-            budget = max(r["curve"]["step"][-1] for r in vals)
+            budget = budgets[name] = max(r["curve"]["step"][-1] for r in vals)
             cells = [", ".join("-" if h is None else str(h) for h in hs) + f" (median {_fmt_steps(m, budget)})"
                      for hs, m in zip(hits, medians[name], strict=True)]  # fmt: skip
             lines.append(
@@ -268,15 +271,16 @@ def report(results: dict, seeds: list[int], steps: int) -> None:
                 f"| {np.median([r['wall_seconds'] for r in vals]):.0f} "
                 f"| {np.median([r['sps_median'] for r in vals]):.0f} |"
             )
-        if ratio_of is not None and ratio_of[0] in medians and ratio_of[1] in medians:
+        for ratio_of in (r for r in ratios if r[0] in medians and r[1] in medians):
             for i, th in enumerate(thresholds):
                 a, b = medians[ratio_of[0]][i], medians[ratio_of[1]][i]
                 if np.isfinite(b) and np.isfinite(a):
                     text = f"{a / b:.2f}" if b > 0 else "n/a (the second at 0)"
                 elif np.isfinite(a):
-                    text = f"< {a / steps:.2f} ({ratio_of[1]} did not reach {th:.0f} within {steps} steps)"
+                    within = budgets[ratio_of[1]]
+                    text = f"< {a / within:.2f} ({ratio_of[1]} did not reach {th:.0f} within {within} steps)"
                 else:
-                    text = f"not defined: {ratio_of[0]} did not reach {th:.0f} within {steps} steps"
+                    text = f"not defined: {ratio_of[0]} did not reach {th:.0f} within {budgets[ratio_of[0]]} steps"
                 lines.append(f"- median steps to {th:.0f}, {ratio_of[0]} / {ratio_of[1]}: **{text}**")
         lines.append("")
 
@@ -286,10 +290,11 @@ def report(results: dict, seeds: list[int], steps: int) -> None:
         flat = {"flat_hrtc": results["rate"]["k5"]} if "rate" in results and "k5" in results["rate"] else {}
         block("(a) results", {"tree": results["tree"]["tree"], **results.get("extend", {}), **flat})
     if "transfer" in results:
-        t = results["transfer"]
+        t = {**results["transfer"], **results.get("extend_transfer", {})}
+        names = ("finetune_long", "scratch_long", "finetune_long_extended", "scratch_long_extended")
         block("(b) Fine-tuning a trained meta-policy on a 1.5x longer pole, against training from scratch",
-              {"finetune_long": t.get("finetune_long", {}), "scratch_long": t.get("scratch_long", {})},
-              ("finetune_long", "scratch_long"))  # fmt: skip
+              {name: t[name] for name in names if name in t}, ("finetune_long", "scratch_long"),
+              ("finetune_long_extended", "scratch_long_extended"))  # fmt: skip
     if "tree" in results:
         block("(b) Skills learned on other tasks (the tree's nodes) reused in cartpole_swingup, vs PPO from scratch",
               {"tree": results["tree"]["tree"], "ppo_scratch": core_ppo(seeds)}, ("tree", "ppo_scratch"))  # fmt: skip
@@ -451,6 +456,7 @@ def main() -> None:
         "transfer": lambda: transfer(args.seeds, args.steps),
         "rate": lambda: rate(args.seeds, args.steps),
         "extend": lambda: extend(args.seeds, args.steps),
+        "extend_transfer": lambda: transfer(args.seeds, args.steps, suffix="_extended"),
         "ratewall": lambda: rate_wall(),
     }
     for phase in args.phase:
