@@ -16,6 +16,8 @@ Phases (each training run is the real ``Trainer``; a finished run directory is r
 - ``ratewall``: wall time of k = 1, 2, 5 side by side: 10k-step runs alternating k1, k2, k5, twice.
 - ``extend``: the tree runs of (a) continued to ``--steps`` (e.g. 100000) from their last checkpoint.
 - ``extend_transfer``: the runs of (b) (fine-tuned and from scratch) continued to ``--steps`` likewise.
+- ``scratch_ppo``: our PPO from scratch on cartpole_swingup to ``--steps`` (the core benchmark's settings), the
+  reference for the extended tree runs.
 - ``report``: table.md, results.json, curves.png, tree.txt, tree_weights.png/csv, command.txt and machine.txt.
 """
 
@@ -40,7 +42,7 @@ sys.path.insert(0, str(ROOT))
 OUT = ROOT / "benchmarks" / "results" / "tree_transfer"
 SKILLS_DIR = OUT / "skills"
 RUNS = ROOT / "runs" / "bench_tree"
-PHASES = ("pretrain", "tree", "transfer", "rate", "ratewall", "extend", "extend_transfer", "report")
+PHASES = ("pretrain", "tree", "transfer", "rate", "ratewall", "extend", "extend_transfer", "scratch_ppo", "report")
 RATES = (1, 2, 5)
 PRETRAIN_STEPS = 20_000
 THRESHOLD = 800.0  # the cart-pole swing-up tasks' solve_threshold
@@ -164,6 +166,15 @@ def transfer(seeds: list[int], steps: int, suffix: str = "") -> dict:
     return out
 
 
+def scratch_ppo(seeds: list[int], steps: int) -> dict:
+    """Our PPO on raw actions from scratch on cartpole_swingup with the core benchmark's settings (root defaults:
+    lr 3e-4 annealed, gamma 0.99, 2 x 500 env steps an update), to ``steps``: the reference of the extended tree."""
+    overrides = ["algo=ppo", "dist=beta", "ppo.learning_rate=3e-4", "ppo.anneal_lr=true", "ppo.num_steps=500",
+                 "ppo.gamma=0.99", f"steps={steps}"]  # fmt: skip
+    return {"ppo_scratch_extended": {f"seed{s}": train(RUNS / "ppo_scratch" / f"seed{s}", "cartpole_swingup",
+                                                       [*overrides, f"seed={s}"]) for s in seeds}}  # fmt: skip
+
+
 def core_ppo(seeds: list[int]) -> dict:
     """Our PPO from scratch on cartpole_swingup (raw actions, root defaults, 50k steps, the same evaluation seeds):
     the committed runs of benchmarks/results/cartpole_swingup_core, not rerun here."""
@@ -232,7 +243,8 @@ def tree_trace(checkpoint: Path, seed: int = 1_000_000) -> pd.DataFrame:
 # --------------------------------------------------------------------------------------------------- report
 def report(results: dict, seeds: list[int], steps: int) -> None:
     OUT.mkdir(parents=True, exist_ok=True)
-    lines = [f"# Learned skills, skill trees, decision rates and transfer (seeds {seeds}, {steps} env steps)", ""]
+    lines = [f"# Learned skills, skill trees, decision rates and transfer (seeds {seeds}, {steps} env steps; "
+             "*_extended runs: the budgets in their rows)", ""]  # fmt: skip
     lines += ["Evaluation return: mean of 3 deterministic episodes (the Beta mean) on seeds disjoint from training, "
               "every 5,000 env steps. Steps to threshold: the first evaluation at or above it.", ""]  # fmt: skip
 
@@ -297,7 +309,9 @@ def report(results: dict, seeds: list[int], steps: int) -> None:
               ("finetune_long_extended", "scratch_long_extended"))  # fmt: skip
     if "tree" in results:
         block("(b) Skills learned on other tasks (the tree's nodes) reused in cartpole_swingup, vs PPO from scratch",
-              {"tree": results["tree"]["tree"], "ppo_scratch": core_ppo(seeds)}, ("tree", "ppo_scratch"))  # fmt: skip
+              {"tree": results["tree"]["tree"], "ppo_scratch": core_ppo(seeds), **results.get("extend", {}),
+               **results.get("scratch_ppo", {})}, ("tree", "ppo_scratch"),
+              ("tree_extended", "ppo_scratch_extended"))  # fmt: skip
     if "rate" in results:
         block("(c) Decision rate: the meta-policy decides every k env steps (skills act every step)", results["rate"])
         base = results["rate"].get("k1")
@@ -337,7 +351,12 @@ def report(results: dict, seeds: list[int], steps: int) -> None:
               "- ppo_scratch: the committed runs of benchmarks/results/cartpole_swingup_core (same code path, root PPO "
               "defaults, the same evaluation seeds), not rerun; their wall time and env steps/s (measured on a far "
               "less loaded machine) are left out.",
-              "- mean over the run: the mean of every evaluation from step 0 to the end (threshold-free)."]  # fmt: skip
+              "- mean over the run: the mean of every evaluation from step 0 to the end (threshold-free).",
+              "- *_extended: tree_extended (phase extend), finetune_long_extended and scratch_long_extended (phase "
+              "extend_transfer) are the same run directories continued from their last checkpoint to the budget in "
+              "their rows (their first steps unchanged); ppo_scratch_extended (phase scratch_ppo) is new runs with the "
+              "core benchmark's PPO settings. The last of them ran at a load average of 3 to 6, so their wall s and "
+              "env steps/s do not compare with the rows above."]  # fmt: skip
     (OUT / "table.md").write_text("\n".join(lines) + "\n")
     (OUT / "results.json").write_text(json.dumps(results, indent=1))
     (OUT / "machine.txt").write_text(_machine())
@@ -380,13 +399,20 @@ def _plot_curves(results: dict, seeds: list[int], path: Path) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    import matplotlib.ticker  # noqa: F401  (matplotlib.ticker.FuncFormatter below)
 
     tree_runs = results.get("tree", {}).get("tree", {})
     flat = {"flat_hrtc": results["rate"]["k5"]} if "k5" in results.get("rate", {}) else {}
+    # (b): the longest runs of each group (an *_extended group holds the same runs continued, from step 0).
+    transfer = {**results.get("transfer", {}), **results.get("extend_transfer", {})}
+    longest = lambda name: transfer.get(f"{name}_extended") or transfer.get(name, {})  # noqa: E731
+    extended = {**results.get("extend", {}), **results.get("scratch_ppo", {})}
+    reuse = ({"tree_extended": extended["tree_extended"], "ppo_scratch_extended": extended["ppo_scratch_extended"]}
+             if {"tree_extended", "ppo_scratch_extended"} <= set(extended)
+             else {"tree": tree_runs, "ppo_scratch": core_ppo(seeds)})  # fmt: skip
     panels = [("(a) tree", {"tree": tree_runs, **results.get("extend", {}), **flat}),
-              ("(b) fine-tune vs scratch, long pole", {k: results.get("transfer", {}).get(k, {})
-                                                       for k in ("finetune_long", "scratch_long")}),
-              ("(b) reused learned skills (tree) vs PPO", {"tree": tree_runs, "ppo_scratch": core_ppo(seeds)}),
+              ("(b) fine-tune vs scratch, long pole", {k: longest(k) for k in ("finetune_long", "scratch_long")}),
+              ("(b) reused learned skills (tree) vs PPO", reuse),
               ("(c) decision rate", results.get("rate", {}))]  # fmt: skip
     fig, axes = plt.subplots(1, 4, figsize=(18, 4.2), sharey=True)
     for ax, (title, groups) in zip(axes, panels, strict=True):
@@ -400,6 +426,7 @@ def _plot_curves(results: dict, seeds: list[int], path: Path) -> None:
         ax.axhline(800, color="k", ls="--", lw=1)
         ax.set_title(title, fontsize=9)
         ax.set_xlabel("env steps")
+        ax.xaxis.set_major_formatter(matplotlib.ticker.FuncFormatter(lambda x, _: f"{x / 1000:.0f}k"))
         ax.legend(fontsize=7, loc="lower right")
     axes[0].set_ylabel("evaluation return")
     fig.tight_layout()
@@ -457,6 +484,7 @@ def main() -> None:
         "rate": lambda: rate(args.seeds, args.steps),
         "extend": lambda: extend(args.seeds, args.steps),
         "extend_transfer": lambda: transfer(args.seeds, args.steps, suffix="_extended"),
+        "scratch_ppo": lambda: scratch_ppo(args.seeds, args.steps),
         "ratewall": lambda: rate_wall(),
     }
     for phase in args.phase:
