@@ -35,7 +35,11 @@ SMALL = ["task=cartpole_swingup", "ppo.num_steps=25", "eval_every=500", "eval_ep
 def _train(run_dir: Path, steps: int, *extra: str) -> subprocess.Popen:
     cmd = [sys.executable, str(ROOT / "scripts" / "train.py"), *SMALL, f"steps={steps}", f"hydra.run.dir={run_dir}",
            *extra]  # fmt: skip
-    return subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    # SIGINT back to its default in the child: under a parent started as a background job (nohup cmd &) it arrives
+    # ignored, and Python would then never raise the KeyboardInterrupt that makes the trainer save and stop.
+    restore = lambda: signal.signal(signal.SIGINT, signal.SIG_DFL)  # noqa: E731
+    return subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True,
+                            preexec_fn=restore)  # fmt: skip
 
 
 def _kill_at_random_moments(run_dir: Path, steps: int, kills: int, seed: int) -> int:
