@@ -262,6 +262,23 @@ class CarRacingTask(FastCarRacing):
             os.close(fd)
 
 
+def pursuit_driver(env: cr.CarRacing, rng: np.random.Generator, mode: str = "road", noise: float = 0.3) -> np.ndarray:
+    """A reference driver for tests and benchmarks (not a skill). ``road``: pure pursuit of the track's centre line 6
+    tiles ahead, with ``noise`` on the steering; ``wild``: random actions that spin off onto the grass."""
+    if mode == "wild":
+        brake = rng.uniform(0, 0.3) * (rng.random() < 0.2)
+        return np.array([rng.uniform(-1, 1), rng.uniform(0, 1), brake], np.float32)
+    car = env.car
+    pos, heading = np.array(car.hull.position), car.hull.angle
+    centre = np.array([(t[2], t[3]) for t in env.track])
+    target = centre[(int(np.argmin(((centre - pos) ** 2).sum(1))) + 6) % len(centre)]
+    forward, to_target = np.array([-math.sin(heading), math.cos(heading)]), target - pos
+    angle = math.atan2(forward[0] * to_target[1] - forward[1] * to_target[0], forward @ to_target)
+    speed = math.hypot(*car.hull.linearVelocity)
+    steer = float(np.clip(-2.0 * angle + noise * rng.normal(), -1, 1))
+    return np.array([steer, 0.6 if speed < 60 else 0.0, 0.0 if speed < 70 else 0.5], np.float32)
+
+
 @register("carracing")
 def carracing(**kwargs: Any) -> CarRacingTask:
     """gymnasium's CarRacing-v3 (continuous) with fast greyscale frames, a 4-frame stack and action repeat."""

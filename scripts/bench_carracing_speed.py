@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
 import platform
 import sys
@@ -34,27 +33,13 @@ sys.path.insert(0, str(ROOT))
 FAR_PIXELS = 16
 
 
-def driver(env, rng: np.random.Generator, mode: str) -> np.ndarray:
-    """``road``: pure pursuit of the centre line 6 tiles ahead with steering noise; ``wild``: random actions."""
-    if mode == "wild":
-        return np.array([rng.uniform(-1, 1), rng.uniform(0, 1), rng.uniform(0, 0.3) * (rng.random() < 0.2)], np.float32)
-    car = env.car
-    pos, heading = np.array(car.hull.position), car.hull.angle
-    centre = np.array([(t[2], t[3]) for t in env.track])
-    target = centre[(int(np.argmin(((centre - pos) ** 2).sum(1))) + 6) % len(centre)]
-    forward, to_target = np.array([-math.sin(heading), math.cos(heading)]), target - pos
-    angle = math.atan2(forward[0] * to_target[1] - forward[1] * to_target[0], forward @ to_target)
-    speed = math.hypot(*car.hull.linearVelocity)
-    steer = float(np.clip(-2.0 * angle + 0.3 * rng.normal(), -1, 1))
-    return np.array([steer, 0.6 if speed < 60 else 0.0, 0.0 if speed < 70 else 0.5], np.float32)
-
-
 def run(args: argparse.Namespace) -> dict:
     from gymnasium.envs.box2d.car_racing import CarRacing
 
     import envs
     from envs.car_raster import GREY_WEIGHTS
     from envs.carracing import FastCarRacing
+    from envs.carracing import pursuit_driver as driver
 
     ref, fast, fast_grey = CarRacing(), FastCarRacing(), FastCarRacing(grey=True)
     task = envs.make("carracing", action_repeat=8)

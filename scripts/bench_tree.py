@@ -26,7 +26,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import shutil
 import sys
 import time
@@ -242,6 +241,8 @@ def tree_trace(checkpoint: Path, seed: int = 1_000_000) -> pd.DataFrame:
 
 # --------------------------------------------------------------------------------------------------- report
 def report(results: dict, seeds: list[int], steps: int) -> None:
+    from hrtc.benchmark.report import machine_info
+
     OUT.mkdir(parents=True, exist_ok=True)
     lines = [f"# Learned skills, skill trees, decision rates and transfer (seeds {seeds}, {steps} env steps; "
              "*_extended runs: the budgets in their rows)", ""]  # fmt: skip
@@ -359,7 +360,7 @@ def report(results: dict, seeds: list[int], steps: int) -> None:
               "env steps/s do not compare with the rows above."]  # fmt: skip
     (OUT / "table.md").write_text("\n".join(lines) + "\n")
     (OUT / "results.json").write_text(json.dumps(results, indent=1))
-    (OUT / "machine.txt").write_text(_machine())
+    (OUT / "machine.txt").write_text(machine_info())
     _plot_curves(results, seeds, OUT / "curves.png")
     print("\n".join(lines))
 
@@ -454,15 +455,6 @@ def _plot_trace(frame: pd.DataFrame, path: Path, checkpoint: str) -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
-
-
-def _machine() -> str:
-    import torch
-
-    return (
-        f"{platform.platform()}; python {platform.python_version()}; {os.cpu_count()} cores; torch {torch.__version__};"
-        f" {platform.processor() or platform.machine()}; date {time.strftime('%Y-%m-%d')}\n"
-    )
 
 
 def main() -> None:

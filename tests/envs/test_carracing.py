@@ -16,6 +16,7 @@ from gymnasium.envs.box2d.car_racing import CarRacing
 import envs
 from envs.car_raster import GREY_WEIGHTS
 from envs.carracing import STATE_KEYS, CarRacingTask, FastCarRacing
+from envs.carracing import pursuit_driver as driver
 
 MEAN_BOUND = 0.4  # mean absolute difference over all frames of a track, RGB
 GREY_MEAN_BOUND = 0.5  # the same for greyscale frames (luma rounding adds about 0.05)
@@ -26,22 +27,6 @@ FAR_FRACTION = 0.03  # ...and at most this fraction of a frame's pixels may be f
 
 def grey(frame: np.ndarray) -> np.ndarray:
     return np.floor(frame.astype(np.float64) @ GREY_WEIGHTS + 0.5)
-
-
-def driver(env: CarRacing, rng: np.random.Generator, mode: str, noise: float = 0.3) -> np.ndarray:
-    """``road``: pure pursuit of the track centre line 6 tiles ahead, with steering noise; ``wild``: random."""
-    if mode == "wild":
-        brake = rng.uniform(0, 0.3) * (rng.random() < 0.2)
-        return np.array([rng.uniform(-1, 1), rng.uniform(0, 1), brake], np.float32)
-    car = env.car
-    pos, heading = np.array(car.hull.position), car.hull.angle
-    centre = np.array([(t[2], t[3]) for t in env.track])
-    target = centre[(int(np.argmin(((centre - pos) ** 2).sum(1))) + 6) % len(centre)]
-    forward, to_target = np.array([-math.sin(heading), math.cos(heading)]), target - pos
-    angle = math.atan2(forward[0] * to_target[1] - forward[1] * to_target[0], forward @ to_target)
-    speed = math.hypot(*car.hull.linearVelocity)
-    steer = float(np.clip(-2.0 * angle + noise * rng.normal(), -1, 1))
-    return np.array([steer, 0.6 if speed < 60 else 0.0, 0.0 if speed < 70 else 0.5], np.float32)
 
 
 @pytest.mark.parametrize(("seed", "mode", "steps"), [(0, "road", 120), (1, "wild", 100), (5, "road", 120)])
