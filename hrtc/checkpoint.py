@@ -55,3 +55,17 @@ def load_checkpoint(path: str | Path) -> dict[str, Any]:
     if missing:
         raise CheckpointError(f"{path} lacks {missing}")
     return state
+
+
+REPO_ROOT = Path(__file__).resolve().parents[1]  # a clone's root: task configs name committed checkpoints from it
+META_KEYS = ("task", "algo", "dist", "obs_dim", "out_dim", "hidden")
+
+
+def resolve_checkpoint(path: str | Path) -> Path:
+    """``path`` as given if it exists, else relative to the repository root (so task configs may name committed
+    checkpoints by a repository path whatever the working directory). Raises :class:`CheckpointError` if neither."""
+    path = Path(path).expanduser()
+    if path.is_file() or path.is_absolute():
+        return path
+    candidate = REPO_ROOT / path
+    return candidate if candidate.is_file() else path
