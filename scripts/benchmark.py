@@ -35,6 +35,8 @@ DEFAULTS: dict[str, Any] = {
     "threshold": None,  # default: the task's solve_threshold
     "solve_episodes": None,  # episodes the threshold is averaged over (default: the task's solve_episodes, else 3)
     "collapse_window": 3,
+    "final_episodes": 10,  # episodes of a last evaluation of each run's final policy
+    "references": True,  # evaluate each skill alone, the untrained blend and the task's declared rules too
     "ray_address": None,
     "backend": "auto",
     "cpus": None,  # CPUs of the local Ray or process pool (default: all of this machine's)
@@ -108,14 +110,18 @@ def main(argv: list[str]) -> int:
             cpus,
             float(threshold),
             solve_episodes,
+            int(args["final_episodes"]),
         )  # fmt: skip
         for seed in seeds
         for algo in algos  # seed-major: a benchmark stopped early has every algorithm on its first seeds
     ]
     meta = {"task": name, "budget": budget, "budgets": budgets, "eval_every": eval_every, "eval_episodes": episodes,
-            "seeds": seeds, "algos": algos, "rule": vars(rule)}  # fmt: skip
+            "seeds": seeds, "algos": algos, "rule": vars(rule),
+            "final_episodes": int(args["final_episodes"])}  # fmt: skip
     out.mkdir(parents=True, exist_ok=True)
     results_path = out / "results.json"
+    if args["references"]:
+        meta["references"] = references(task, results_path, int(args["final_episodes"]) or 10)
     errors: dict[str, str] = {}
     with (out / "command.txt").open("a") as handle:  # every invocation: a resumed benchmark's runs come from several
         handle.write("python scripts/benchmark.py " + " ".join(argv) + "\n")
@@ -142,6 +148,34 @@ def main(argv: list[str]) -> int:
     for key, error in errors.items():
         print(f"failed {key}: {error}", file=sys.stderr)
     return 1 if errors else 0
+
+
+def references(task: dict, results_path: Path, episodes: int) -> dict[str, list[float]]:
+    """Returns of every reference rule over the task's skills (:mod:`hrtc.references`) on ``episodes`` evaluation
+    seeds of seed 1, reused from ``results_path`` when it holds them for as many episodes."""
+    import json
+
+    from hrtc.references import evaluate_rules, reference_rules
+    from hrtc.trainer import eval_seeds, make_env
+
+    stored = json.loads(results_path.read_text()).get("references", {}) if results_path.exists() else {}
+    if stored and all(len(v) == episodes for v in stored.values()):
+        return stored
+    algo_cfg = compose_task(task["name"])
+    env = make_env(task["name"], "hrtc", task["skills"], env_kwargs=task.get("env_kwargs"),
+                   decision_every=int(algo_cfg["algo"]["decision_every"]))  # fmt: skip
+    rules = reference_rules(env.skill_names, task.get("references"))
+    print(f"references: {len(rules)} rules x {episodes} episodes", file=sys.stderr)
+    return {k: v.tolist() for k, v in evaluate_rules(env, rules, eval_seeds(1, episodes)).items()}
+
+
+def compose_task(task: str) -> dict:
+    """The composed config of ``task=<task>`` (its decision rate and settings) as plain containers."""
+    from omegaconf import OmegaConf
+
+    from hrtc.cli import compose
+
+    return OmegaConf.to_container(compose([f"task={task}"]), resolve=True)  # type: ignore[return-value]
 
 
 if __name__ == "__main__":

@@ -102,7 +102,8 @@ def test_the_actor_loss_never_moves_the_critics():
     policy, critics = ActorCritic(4, 3, "beta", (16,)), TwinQ(4, 3, (16,))
     target = TwinQ(4, 3, (16,))
     buffer = ReplayBuffer(100, 4, 3)
-    buffer.add(np.random.randn(50, 4), np.random.rand(50, 3), np.random.rand(50), np.random.randn(50, 4), np.zeros(50))
+    rng = np.random.default_rng(0)
+    buffer.add(rng.normal(size=(50, 4)), rng.random((50, 3)), rng.random(50), rng.normal(size=(50, 4)), np.zeros(50))
     losses = sac_losses(policy, critics, target, buffer.sample(32, torch.Generator().manual_seed(0)), 0.1, 0.9)
     (losses["actor"] + losses["value"]).backward(inputs=list(policy.parameters()))
     assert all(p.grad is None for p in critics.parameters())
@@ -146,8 +147,8 @@ def test_learner_takes_updates_per_decision_gradient_steps_after_learning_starts
     policy = ActorCritic(2, 2, "beta", (8,))
     learner = SACLearner(policy, SACConfig(batch_size=4, learning_starts=8, updates_per_decision=0.5, q_hidden=(8,),
                                            log_every=1000), 2, 0.9, torch.Generator().manual_seed(0))  # fmt: skip
-    step = Step(np.zeros((2, 2), np.float32), np.full((2, 2), 0.5, np.float32), np.ones(2), np.zeros((2, 2), np.float32),
-                np.zeros(2, bool), np.zeros(2, bool))  # fmt: skip
+    obs = np.zeros((2, 2), np.float32)
+    step = Step(obs, np.full((2, 2), 0.5, np.float32), np.ones(2), obs, np.zeros(2, bool), np.zeros(2, bool))
     for _ in range(4):  # 8 decisions: learning starts with the 4th step
         learner.observe(step)
         learner.update()

@@ -1,0 +1,64 @@
+"""Why PPO over Beta weights stalls below the hand rule: what the trained meta-policy's weights look like.
+
+    python benchmarks/results/learner_diagnosis/diagnose.py CHECKPOINT [CHECKPOINT...] [--episodes 10]
+
+For each checkpoint, on the evaluation seeds of its seed: the return with the Beta means (what is evaluated) and with
+sampled weights (what PPO optimises), the share of decisions whose weights are "pinned" (the dominant weight >= 0.9 and
+every other <= 0.1: what the switching rule needs, see soft switches in table.md), and the median concentration
+alpha + beta.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[3]))
+
+from hrtc.trainer import Decision, eval_seeds, load_policy, make_env, normalize_obs, run_episodes  # noqa: E402
+
+
+def diagnose(path: str, episodes: int) -> dict[str, float]:
+    policy, normalizer, meta = load_policy(path)
+    env = make_env(meta["task"], "hrtc", meta["skills_cfg"], meta["action_filter"], meta["env_kwargs"],
+                   int(meta["decision_every"]))  # fmt: skip
+    seeds = eval_seeds(1, episodes)
+    log: dict[str, list] = {"w": [], "conc": []}
+
+    def decider(sample: bool):
+        def decide(obs: np.ndarray) -> Decision:
+            nobs = normalize_obs(normalizer, obs[None])
+            with torch.no_grad():
+                d = policy.distribution(torch.as_tensor(nobs))
+                u = (d.sample() if sample else d.mode()).numpy()[0]
+            if not sample:
+                log["w"].append(u)
+                log["conc"].append((d.alpha + d.beta).numpy()[0])
+            return Decision(nobs[0], u, u.astype(np.float32))
+
+        return decide
+
+    torch.manual_seed(0)
+    mean_returns = run_episodes(env, decider(False), seeds)
+    sampled_returns = run_episodes(env, decider(True), seeds)
+    w, conc = np.array(log["w"]), np.array(log["conc"])
+    top = np.sort(w, axis=1)
+    pinned = (top[:, -1] >= 0.9) & (top[:, :-1] <= 0.1).all(axis=1)
+    return {"mean weights return": mean_returns.mean(), "sampled weights return": sampled_returns.mean(),
+            "pinned share": pinned.mean(), "dominant weight (median)": float(np.median(top[:, -1])),
+            "runner-up weight (median)": float(np.median(top[:, -2])),
+            "alpha+beta (median)": float(np.median(conc)), "alpha+beta (90th pct)": float(np.percentile(conc, 90))}
+
+
+if __name__ == "__main__":
+    parser = argparse.ArgumentParser()
+    parser.add_argument("checkpoints", nargs="+")
+    parser.add_argument("--episodes", type=int, default=10)
+    args = parser.parse_args()
+    for ckpt in args.checkpoints:
+        stats = diagnose(ckpt, args.episodes)
+        print(ckpt, " | ".join(f"{k} {v:.3g}" for k, v in stats.items()))
