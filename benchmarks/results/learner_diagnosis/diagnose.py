@@ -29,13 +29,17 @@ def diagnose(path: str, episodes: int) -> dict[str, float]:
     seeds = eval_seeds(1, episodes)
     log: dict[str, list] = {"w": [], "conc": []}
 
-    def decider(sample: bool):
+    def decider(rule: str):
         def decide(obs: np.ndarray) -> Decision:
             nobs = normalize_obs(normalizer, obs[None])
             with torch.no_grad():
                 d = policy.distribution(torch.as_tensor(nobs))
-                u = (d.sample() if sample else d.mode()).numpy()[0]
-            if not sample:
+                if rule == "mode":  # the Beta's peak (alpha - 1) / (alpha + beta - 2); the mean where it is flat
+                    peak = (d.alpha - 1) / (d.alpha + d.beta - 2).clamp_min(1e-6)
+                    u = torch.where(d.alpha + d.beta > 2 + 1e-6, peak, d.mode()).numpy()[0]
+                else:
+                    u = (d.sample() if rule == "sample" else d.mode()).numpy()[0]
+            if rule == "mean":
                 log["w"].append(u)
                 log["conc"].append((d.alpha + d.beta).numpy()[0])
             return Decision(nobs[0], u, u.astype(np.float32))
@@ -43,12 +47,14 @@ def diagnose(path: str, episodes: int) -> dict[str, float]:
         return decide
 
     torch.manual_seed(0)
-    mean_returns = run_episodes(env, decider(False), seeds)
-    sampled_returns = run_episodes(env, decider(True), seeds)
+    mean_returns = run_episodes(env, decider("mean"), seeds)
+    sampled_returns = run_episodes(env, decider("sample"), seeds)
+    mode_returns = run_episodes(env, decider("mode"), seeds)
     w, conc = np.array(log["w"]), np.array(log["conc"])
     top = np.sort(w, axis=1)
     pinned = (top[:, -1] >= 0.9) & (top[:, :-1] <= 0.1).all(axis=1)
     return {"mean weights return": mean_returns.mean(), "sampled weights return": sampled_returns.mean(),
+            "Beta-mode weights return": mode_returns.mean(),
             "pinned share": pinned.mean(), "dominant weight (median)": float(np.median(top[:, -1])),
             "runner-up weight (median)": float(np.median(top[:, -2])),
             "alpha+beta (median)": float(np.median(conc)), "alpha+beta (90th pct)": float(np.percentile(conc, 90))}
