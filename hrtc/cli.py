@@ -200,6 +200,17 @@ def one_of(*choices: Any) -> Check:
     return check
 
 
+def required(inner: Check, example: str) -> Check:
+    """What ``inner`` accepts; None (not given) is refused with an ``example`` of the option."""
+
+    def check(name: str, value: Any) -> Any:
+        if value is None or value == "":
+            raise ConfigError(f"{name}=<{example}> is required")
+        return inner(name, value)
+
+    return check
+
+
 def optional(inner: Check) -> Check:
     """None (the option left at its default), or what ``inner`` accepts."""
     return lambda name, value: None if value is None else inner(name, value)
@@ -227,6 +238,16 @@ def mapping(name: str, value: Any) -> dict:
     if not isinstance(value, dict) or not all(isinstance(k, str) for k in value):
         raise ConfigError(f"{name} must be a mapping like {{key: value}}, got {value!r}")
     return dict(value)
+
+
+def registered_task(name: str, value: Any) -> str:
+    """A task name ``envs.make`` accepts (:func:`envs.names`)."""
+    import envs
+    from hrtc.errors import UnknownNameError
+
+    if value not in envs.names():
+        raise UnknownNameError("task", str(value), envs.names())
+    return str(value)
 
 
 def input_file(name: str, value: Any) -> Path:
@@ -366,12 +387,12 @@ def prepare_run(args: Sequence[str], config_name: str = "config") -> list[str]:
         try:
             last = run_dir / "checkpoints" / "last.pt"
             if cfg.resume and last.exists():
-                _check_checkpoint(load_checkpoint(last), env, last)
+                check_checkpoint_fits(load_checkpoint(last)["meta"], env, last)
             if run.init_from:
                 from skills.learned import resolve_checkpoint
 
                 path = resolve_checkpoint(run.init_from)
-                _check_checkpoint(load_checkpoint(path), env, path)
+                check_checkpoint_fits(load_checkpoint(path)["meta"], env, path)
         finally:
             env.close()
         runlock.hold(run_dir)
@@ -380,15 +401,14 @@ def prepare_run(args: Sequence[str], config_name: str = "config") -> list[str]:
     return args if "hydra.run.dir" in given else [*args, f"hydra.run.dir={run_dir}"]
 
 
-def _check_checkpoint(state: dict, env: Any, path: Path) -> None:
-    """A checkpoint's skills and sizes against the environment this run will act in (the trainer checks again)."""
-    meta = state["meta"]
+def check_checkpoint_fits(meta: Mapping[str, Any], env: Any, path: str | Path) -> None:
+    """A checkpoint's skills and sizes (its ``meta``) against the environment ``env`` its policy is to act in."""
     mine = {"skills": list(getattr(env, "skill_names", ())), "obs_dim": int(math.prod(env.observation_space.shape)),
             "out_dim": int(env.action_space.shape[0])}  # fmt: skip
     theirs = {key: list(meta.get(key) or []) if key == "skills" else meta.get(key) for key in mine}
     if theirs != mine:
         raise ConfigError(f"{path} was trained with skills {theirs['skills']} (obs {theirs['obs_dim']}, out "
-                          f"{theirs['out_dim']}); this run has {mine['skills']} (obs {mine['obs_dim']}, out "
+                          f"{theirs['out_dim']}); this environment has {mine['skills']} (obs {mine['obs_dim']}, out "
                           f"{mine['out_dim']})")  # fmt: skip
 
 
