@@ -7,6 +7,7 @@ every composition error into ``error: ...`` on stderr and exit status 2.
 
 from __future__ import annotations
 
+import argparse
 import math
 import os
 import shutil
@@ -14,7 +15,7 @@ import sys
 from collections.abc import Callable, Mapping, Sequence
 from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 from hrtc.errors import ConfigError
 
@@ -28,7 +29,8 @@ def group_choices(group: str) -> list[str]:
     return sorted(p.name[: -len(".yaml")] for p in folder.iterdir() if p.name.endswith(".yaml"))
 
 
-def fail(message: str, status: int = 2) -> None:
+def fail(message: str, status: int = 2) -> NoReturn:
+    """Exit with ``error: message`` on stderr, one line, and ``status``."""
     print(f"error: {message}", file=sys.stderr)
     raise SystemExit(status)
 
@@ -141,6 +143,15 @@ def parse_options(args: Sequence[str], defaults: dict, usage: str, checks: Mappi
     return validate(options, checks or {})
 
 
+class ArgumentParser(argparse.ArgumentParser):
+    """``argparse`` for the scripts with ``--flags``: a usage error is one ``error:`` line (status 2), not argparse's
+    usage block and message."""
+
+    def error(self, message: str) -> NoReturn:  # type: ignore[override]
+        fail(f"{message} (see {self.prog} --help)")
+        raise AssertionError  # fail() exits
+
+
 # ------------------------------------------------------------------------------------------------ validation
 # A check takes an option's name and value and returns the value as the script uses it, or raises ConfigError with
 # the one line the user sees. Scripts declare one per option beside their defaults; validate() runs them all before
@@ -193,8 +204,10 @@ def one_of(*choices: Any) -> Check:
     """One of ``choices``."""
 
     def check(name: str, value: Any) -> Any:
+        from hrtc.errors import UnknownNameError
+
         if value not in choices:
-            raise ConfigError(f"unknown {name} {value!r}; valid: {', '.join(map(str, choices))}")
+            raise UnknownNameError(name, str(value), tuple(map(str, choices)))
         return value
 
     return check
