@@ -200,6 +200,13 @@ def number(low: float | None = None, high: float | None = None) -> Check:
     return check
 
 
+def boolean(name: str, value: Any) -> bool:
+    """true or false (YAML's booleans)."""
+    if not isinstance(value, bool):
+        raise ConfigError(f"{name} must be true or false, got {value!r}")
+    return value
+
+
 def one_of(*choices: Any) -> Check:
     """One of ``choices``."""
 
