@@ -44,15 +44,6 @@ def run(opts: dict) -> str:
 
     from hrtc.cli import build_env, numbers, output_path, task_config
     from hrtc.errors import ConfigError, UnknownNameError
-    from hrtc.logging.trace import (
-        RecordingConfig,
-        TraceCollector,
-        format_returns,
-        format_skill_statistics,
-        skill_statistics,
-    )
-    from hrtc.trainer import Decision, eval_seeds, frame_source, run_episodes
-    from hrtc.tree import describe
 
     task = task_config(str(opts["task"]))
     skills = task.get("skills") or {}
@@ -76,6 +67,16 @@ def run(opts: dict) -> str:
         raise UnknownNameError("skill", str(opts["skill"]), (*names, "list"))
     episodes, seed = int(opts["episodes"]), int(opts["seed"])
     out = opts["out"] or output_path(directory=True)("out", Path("runs") / "skills" / task["name"] / label)
+
+    from hrtc.logging.trace import (  # the heavy imports (torch) after the checks: bad input is answered at once
+        RecordingConfig,
+        TraceCollector,
+        format_returns,
+        format_skill_statistics,
+        skill_statistics,
+    )
+    from hrtc.trainer import Decision, eval_seeds, frame_source, run_episodes
+    from hrtc.tree import describe
 
     env = build_env(task["name"], "hrtc", skills, "sum", task.get("env_kwargs"), 1, eval_seeds(seed, 1)[0])
     recorder, render = None, None

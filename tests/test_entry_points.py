@@ -1,6 +1,9 @@
 """Every entry point answers bad input as a user meets it: run as a subprocess, each case of a per-script corpus
 (types, ranges, shapes, missing and unreadable files, wrong kinds of file) must exit non-zero with exactly one
-``error:`` line on stderr, no traceback, and leave the file system as it was (nothing created, nothing changed)."""
+``error:`` line on stderr, no traceback, and leave the file system as it was (nothing created, nothing changed).
+
+Cases that take seconds (they load a checkpoint or build a task in a fresh interpreter) are marked ``slow`` beyond a
+few representatives; ``pytest -m slow tests/test_entry_points.py`` runs them."""
 
 import os
 import shutil
@@ -105,12 +108,15 @@ def _refused(script: str, args: list[str], expected: str, files: dict[str, Path]
     assert after == before, f"changed: {sorted(set(after) ^ set(before)) or 'modification times'}"
 
 
-def _cases(corpus: list[tuple[list[str], str]]) -> list:
+SLOW = "slow"  # a third element: the case takes seconds (it loads a checkpoint, builds a task): run with -m slow
+
+
+def _cases(corpus: list[tuple]) -> list:
     out = []
-    for args, expected in corpus:
-        marks = (
-            [pytest.mark.skipif(ROOT_USER, reason="root reads any file")] if "{unreadable}" in " ".join(args) else []
-        )
+    for args, expected, *flags in corpus:
+        marks = [pytest.mark.slow] if SLOW in flags else []
+        if "{unreadable}" in " ".join(args):
+            marks.append(pytest.mark.skipif(ROOT_USER, reason="root reads any file"))
         out.append(pytest.param(args, expected, id=" ".join(args) or "(none)", marks=marks))
     return out
 
@@ -125,9 +131,9 @@ EVAL = [
     (["checkpoint={unreadable}"], "is not readable"),
     (["checkpoint={text}"], "notes.txt was refused by the safe loader (not plain tensors and containers): Unsupported"),
     (["checkpoint={trunc}"], "truncated.pt is not a readable checkpoint"),
-    (["checkpoint={rrd}"], "recording.rrd is not a readable checkpoint"),
-    (["checkpoint={foreign}"], "foreign.pt is not an hrtc checkpoint"),
-    (["checkpoint={old}"], "predates checkpoints that describe their task's skills"),
+    (["checkpoint={rrd}"], "recording.rrd is not a readable checkpoint", SLOW),
+    (["checkpoint={foreign}"], "foreign.pt is not an hrtc checkpoint", SLOW),
+    (["checkpoint={old}"], "predates checkpoints that describe their task's skills", SLOW),
     (["checkpoint={hrtc}", "episodes=-1"], "episodes must be an integer in [1, 100000], got -1"),
     (["checkpoint={hrtc}", "episodes=0"], "episodes must be an integer in [1, 100000], got 0"),
     (["checkpoint={hrtc}", "episodes=abc"], "cannot parse episodes='abc' (expected int)"),
@@ -142,7 +148,7 @@ EVAL = [
     (["checkpoint={hrtc}", "out={text}/eval"], "notes.txt is a file, not a directory"),
     (["checkpoint={hrtc}", "task=cartpol"], "unknown task 'cartpol'; valid tasks: carracing, cartpole_balance"),
     (["checkpoint={hrtc}", "task=[cartpole_swingup]"], "unknown task \"['cartpole_swingup']\""),
-    (["checkpoint={hrtc}", "task=lunarlander"], "cannot evaluate"),
+    (["checkpoint={hrtc}", "task=lunarlander"], "cannot evaluate", SLOW),
     (
         ["checkpoint={ppo}", "task=lunarlander"],
         "was trained with skills [] (obs 5, out 1); this environment has [] (obs 8, out 2)",
@@ -151,13 +157,14 @@ EVAL = [
         ["checkpoint={hrtc}", "env_kwargs.pole_mass_scale=1.5"],
         "task 'cartpole_swingup' cannot be built with env_kwargs",
     ),
-    (["checkpoint={hrtc}", "env_kwargs={{colour: red}}"], "unexpected keyword argument 'colour'"),
+    (["checkpoint={hrtc}", "env_kwargs={{colour: red}}"], "unexpected keyword argument 'colour'", SLOW),
     (["checkpoint={hrtc}", "env_kwargs=[1,2]"], "env_kwargs must be a mapping like {key: value}, got [1, 2]"),
     (["checkpoint={hrtc}", "env_kwargs={{a: 1"], "cannot parse env_kwargs='{a: 1'"),
-    (["checkpoint={hrtc}", "env_kwargs.time_limit=abc"], "cannot be built with env_kwargs"),
+    (["checkpoint={hrtc}", "env_kwargs.time_limit=abc"], "cannot be built with env_kwargs", SLOW),
     (
         ["checkpoint={hrtc}", "task=cartpole_swingup_heavy", "env_kwargs.pole_mass_scale=100"],
         "pole_mass_scale must lie in [0.1, 10], got 100",
+        SLOW,
     ),
     (["checkpoint={hrtc}", "bogus=1"], "unknown option 'bogus'; valid keys: checkpoint, episodes"),
     (["checkpoint={hrtc}", "episodes"], "malformed argument 'episodes': options look like key=value"),
@@ -304,31 +311,40 @@ def test_benchmark_refuses_bad_input(files, tmp_path, args, expected):
 # Beyond test_reliability's in-process corpus: the real script, whose Hydra would write .hydra/ and a log into the
 # run directory if a check came after it.
 TRAIN = [
-    (["task=cartpol"], "unknown task 'cartpol'; valid tasks: "),
+    (["task=cartpol"], "unknown task 'cartpol'; valid tasks: ", SLOW),
     (["steps=-3"], "steps must be a positive integer, got -3"),
-    (["steps=abc"], "steps must be a positive integer, got 'abc'"),
-    (["steps=[1"], "malformed override"),
-    (["seed=-1"], "seed must be a non-negative integer"),
-    (["resume=maybe"], "resume must be true or false, got 'maybe'"),
-    (["logger.mode=disk"], "unknown logger mode 'disk'"),
-    (["algo.decision_every=0"], "algo.decision_every must be a positive integer"),
+    (["steps=abc"], "steps must be a positive integer, got 'abc'", SLOW),
+    (["steps=[1"], "malformed override", SLOW),
+    (["seed=-1"], "seed must be a non-negative integer", SLOW),
+    (["resume=maybe"], "resume must be true or false, got 'maybe'", SLOW),
+    (["logger.mode=disk"], "unknown logger mode 'disk'", SLOW),
+    (["algo.decision_every=0"], "algo.decision_every must be a positive integer", SLOW),
     (["hydra.run.dir={text}"], "notes.txt exists and is a file, not a directory"),
-    (["hydra.run.dir={text}/run"], "notes.txt is a file, not a directory"),
-    (["init_from={missing}"], "no checkpoint at"),
-    (["init_from={text}"], "notes.txt was refused by the safe loader"),
-    (["init_from={trunc}"], "truncated.pt is not a readable checkpoint"),
-    (["init_from={folder}"], "no checkpoint at"),
+    (["hydra.run.dir={text}/run"], "notes.txt is a file, not a directory", SLOW),
+    (["init_from={missing}"], "no checkpoint at", SLOW),
+    (["init_from={text}"], "notes.txt was refused by the safe loader", SLOW),
+    (["init_from={trunc}"], "truncated.pt is not a readable checkpoint", SLOW),
+    (["init_from={folder}"], "no checkpoint at", SLOW),
     (
         ["init_from={ppo}"],
         "was trained with skills [] (obs 5, out 1); this environment has ['swingup', 'balance', "
         "'tracker', 'hold'] (obs 5, out 4)",
+        SLOW,
     ),
-    (["+task.env_kwargs.colour=red"], "task 'cartpole_swingup' cannot be built with env_kwargs {'colour': 'red'}"),
+    (
+        ["+task.env_kwargs.colour=red"],
+        "task 'cartpole_swingup' cannot be built with env_kwargs {'colour': 'red'}",
+        SLOW,
+    ),
     (["task.skills.hold.skill._target_=skills.static.Nope"], "skill 'hold' could not be built"),
-    (["task.skills.hold.skill.action=[0.0,0.0]"], "skill 'hold' proposed an action of shape (2,); the task's is (1,)"),
-    (["+task.skills.hold.state=[cart_acceleration]"], "unknown state key 'cart_acceleration'"),
+    (
+        ["task.skills.hold.skill.action=[0.0,0.0]"],
+        "skill 'hold' proposed an action of shape (2,); the task's is (1,)",
+        SLOW,
+    ),
+    (["+task.skills.hold.state=[cart_acceleration]"], "unknown state key 'cart_acceleration'", SLOW),
     (["resume=true", "<corrupt last.pt>"], "last.pt was refused by the safe loader"),
-    (["resume=true", "<ppo last.pt>"], "last.pt was trained with skills []"),
+    (["resume=true", "<ppo last.pt>"], "last.pt was trained with skills []", SLOW),
 ]
 
 
