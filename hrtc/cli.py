@@ -387,26 +387,28 @@ def prepare_run(args: Sequence[str], config_name: str = "config") -> list[str]:
     from hrtc.errors import HRTCError
     from hrtc.trainer import RunConfig
 
-    check_overrides(args, config_name)
     args = list(args)
     if any(a.startswith("-") for a in args):  # --help, --cfg job, --multirun...: Hydra's own modes, no run here
+        check_overrides(args, config_name)
         return args
-    user = _overrides_only(args)
-    given = {o.key_or_group: o.value() for o in OverridesParser.create().parse_overrides(user)}
-    cfg = compose(args, config_name, hydra=True)
-    run_dir = Path(str(given.get("hydra.run.dir") or cfg.hydra.run.dir))
+    cfg = compose(args, config_name, hydra=True)  # check_overrides first
+    given = {o.key_or_group: o.value() for o in OverridesParser.create().parse_overrides(_overrides_only(args))}
+    # A run directory given with an interpolation is Hydra's to resolve: start_run checks and locks it then.
+    run_dir = None if "${" in str(given.get("hydra.run.dir", "")) else Path(str(given.get("hydra.run.dir") or
+                                                                                cfg.hydra.run.dir))  # fmt: skip
     with open_dict(cfg):
         del cfg["hydra"]
     try:
         if cfg.get("resume") not in (True, False):
             raise ConfigError(f"resume must be true or false, got {cfg.get('resume')!r}")
         run = RunConfig.from_mapping(OmegaConf.to_container(cfg, resolve=True))
-        output_path()("hydra.run.dir", run_dir)
+        if run_dir is not None:
+            output_path()("hydra.run.dir", run_dir)
         # The task, its env_kwargs and skills, built and reset once as the trainer will (here, before any write).
         env = build_env(run.task, run.algo, run.skills, run.action_filter, run.env_kwargs, run.decision_every, run.seed)
         try:
-            last = run_dir / "checkpoints" / "last.pt"
-            if cfg.resume and last.exists():
+            last = run_dir / "checkpoints" / "last.pt" if run_dir is not None else None
+            if cfg.resume and last is not None and last.exists():
                 check_checkpoint_fits(load_checkpoint(last)["meta"], env, last)
             if run.init_from:
                 from skills.learned import resolve_checkpoint
@@ -415,7 +417,8 @@ def prepare_run(args: Sequence[str], config_name: str = "config") -> list[str]:
                 check_checkpoint_fits(load_checkpoint(path)["meta"], env, path)
         finally:
             env.close()
-        runlock.hold(run_dir)
+        if run_dir is not None:
+            runlock.hold(run_dir)
     except HRTCError as error:
         fail(str(error))
     return args if "hydra.run.dir" in given else [*args, f"hydra.run.dir={run_dir}"]
