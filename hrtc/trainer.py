@@ -164,13 +164,15 @@ class RunConfig:
 
 # --------------------------------------------------------------------------------------------------- environments
 def make_env(task: str, algo: str, skills: Mapping[str, Any], action_filter: str = "sum",
-             env_kwargs: Mapping[str, Any] | None = None, decision_every: int = 1) -> gym.Env:  # fmt: skip
-    """The environment the policy acts in: the task itself (``ppo``) or the task composed with its skills (``hrtc``)."""
+             env_kwargs: Mapping[str, Any] | None = None, decision_every: int = 1,
+             diagnostics: bool = True) -> gym.Env:  # fmt: skip
+    """The environment the policy acts in: the task itself (``ppo``) or the task composed with its skills (``hrtc``).
+    ``diagnostics``: the composed env's timings and fault counters in ``info`` (see :class:`ComposedEnv`)."""
     import envs
 
     env = envs.make(task, **dict(env_kwargs or {}))
     if algo == "hrtc":
-        env = ComposedEnv(env, build_library(skills), action_filter, decision_every)  # type: ignore[arg-type]
+        env = ComposedEnv(env, build_library(skills), action_filter, decision_every, diagnostics)  # type: ignore[arg-type]
     return env
 
 
