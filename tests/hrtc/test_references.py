@@ -11,7 +11,9 @@ from hrtc.trainer import make_env
 SWITCH = SwitchRule("pole_angle", 0.5, above={"swingup": 1.0}, below={"balance": 1.0})
 
 
-@pytest.mark.parametrize(("angle", "chosen"), [(3.0, "swingup"), (-0.6, "swingup"), (0.4, "balance"), (-0.1, "balance")])
+@pytest.mark.parametrize(
+    ("angle", "chosen"), [(3.0, "swingup"), (-0.6, "swingup"), (0.4, "balance"), (-0.1, "balance")]
+)
 def test_switch_rule_uses_the_magnitude_of_the_named_quantity(angle, chosen):
     assert SWITCH({"pole_angle": np.array([angle])}) == {chosen: 1.0}
     signed = SwitchRule("x", 0.0, above={"a": 1.0}, below={"b": 1.0}, absolute=False)
