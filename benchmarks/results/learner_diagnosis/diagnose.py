@@ -1,11 +1,12 @@
 """Why PPO over Beta weights stalls below the hand rule: what the trained meta-policy's weights look like.
 
     python benchmarks/results/learner_diagnosis/diagnose.py CHECKPOINT [CHECKPOINT...] [--episodes 10]
+    python benchmarks/results/learner_diagnosis/diagnose.py --soft-rules [--episodes 10]
 
 For each checkpoint, on the evaluation seeds of its seed: the return with the Beta means (what is evaluated) and with
 sampled weights (what PPO optimises), the share of decisions whose weights are "pinned" (the dominant weight >= 0.9 and
 every other <= 0.1: what the switching rule needs, see soft switches in table.md), and the median concentration
-alpha + beta.
+alpha + beta. ``--soft-rules`` scores cartpole_swingup's switching rule with softer weights than 0 and 1.
 """
 
 from __future__ import annotations
@@ -60,11 +61,32 @@ def diagnose(path: str, episodes: int) -> dict[str, float]:
             "alpha+beta (median)": float(np.median(conc)), "alpha+beta (90th pct)": float(np.percentile(conc, 90))}
 
 
+def soft_rules(episodes: int) -> None:
+    """The switching rule with the active skill at ``hi`` and the inactive ones at ``lo`` (all, or only hold and
+    tracker at 0)."""
+    from hrtc.cli import task_config
+    from hrtc.references import SwitchRule, evaluate_rules
+
+    task = task_config("cartpole_swingup")
+    env = make_env("cartpole_swingup", "hrtc", task["skills"], decision_every=5)
+    rules = {}
+    for hi, lo in ((1.0, 0.0), (0.9, 0.1), (0.8, 0.2), (0.7, 0.3), (0.6, 0.4)):
+        rest = {"tracker": lo, "hold": lo}
+        rules[f"{hi} / {lo}"] = SwitchRule("pole_angle", 0.5, {"swingup": hi, "balance": lo, **rest},
+                                           {"balance": hi, "swingup": lo, **rest})  # fmt: skip
+        rules[f"{hi} / 0"] = SwitchRule("pole_angle", 0.5, {"swingup": hi}, {"balance": hi})
+    for name, returns in evaluate_rules(env, rules, eval_seeds(1, episodes)).items():
+        print(f"active / inactive {name}: {returns.mean():.1f} +- {returns.std():.1f}")
+
+
 if __name__ == "__main__":
     parser = argparse.ArgumentParser()
-    parser.add_argument("checkpoints", nargs="+")
+    parser.add_argument("checkpoints", nargs="*")
     parser.add_argument("--episodes", type=int, default=10)
+    parser.add_argument("--soft-rules", action="store_true")
     args = parser.parse_args()
+    if args.soft_rules:
+        soft_rules(args.episodes)
     for ckpt in args.checkpoints:
         stats = diagnose(ckpt, args.episodes)
         print(ckpt, " | ".join(f"{k} {v:.3g}" for k, v in stats.items()))
