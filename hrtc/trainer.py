@@ -494,7 +494,10 @@ class Trainer:
                 f"{mine['out_dim']}, learner {mine['learner']})"
             )
         self.policy.load_state_dict(state["policy"])
-        self.learner.load_state_dict(state["optimizer"])
+        learner_state = state["optimizer"]
+        if "param_groups" in learner_state:  # saved before the learner plug-in point: PPO's optimiser alone
+            learner_state = {"optimizer": learner_state, "reward_rms": state.get("reward_rms", {})}
+        self.learner.load_state_dict(learner_state)
         if self.normalizer and state["obs_rms"]:
             self.normalizer.rms.load_state_dict(state["obs_rms"])
         self.global_step, self.update = int(state["global_step"]), int(state["update"])
