@@ -273,7 +273,7 @@ BENCH = [
     (["task=cartpole_swingup", "seeds=[a]"], "every entry of seeds must be an integer, got 'a'"),
     (["task=cartpole_swingup", "seeds=[-1]"], "every entry of seeds must be an integer in [0, 999], got -1"),
     (["task=cartpole_swingup", "seeds=[1"], "malformed argument"),
-    (["task=cartpole_swingup", "algos=[hrtc_beta,sac]"], "unknown algorithm 'sac'; valid: hrtc_beta, hrtc_beta_sac, hrtc_normal"),
+    (["task=cartpole_swingup", "algos=[hrtc_beta,sac]"], "unknown algorithm 'sac'; valid: hrtc_beta, hrtc_beta_sac"),
     (["task=cartpole_swingup", "algos=[]"], "algos must list distinct algorithms, got []"),
     (["task=cartpole_swingup", "budgets.sac=5"], "unknown algorithm 'sac' in budgets; valid: hrtc_beta"),
     (["task=cartpole_swingup", "budgets.sb3_sac=0"], "budgets.sb3_sac must be an integer >= 1, got 0"),

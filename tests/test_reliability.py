@@ -28,8 +28,9 @@ ROOT = Path(__file__).resolve().parents[1]
 SKILLS = OmegaConf.to_container(OmegaConf.load(ROOT_CONF / "task" / "cartpole_swingup.yaml"))["task"]["skills"]
 
 # A small real run: 2 envs x 25 decisions x 5 env steps = 250 env steps an update, 1 s episodes.
-SMALL = ["task=cartpole_swingup", "ppo.num_steps=25", "eval_every=500", "eval_episodes=1", "checkpoint_every=250",
-         "+task.env_kwargs.time_limit=1.0", "progress=false", "logger.frames=false"]  # fmt: skip
+SMALL = ["task=cartpole_swingup", "learner=ppo", "ppo.num_steps=25", "eval_every=500", "eval_episodes=1",
+         "checkpoint_every=250", "+task.env_kwargs.time_limit=1.0", "progress=false",
+         "logger.frames=false"]  # fmt: skip
 
 
 def _train(run_dir: Path, steps: int, *extra: str) -> subprocess.Popen:

@@ -365,7 +365,7 @@ def write_report(results: Mapping[str, Any], out: Path, rule: SolveRule) -> str:
         "",
         "## Headline",
         "",
-        *headline(outcomes, budget=budget),
+        *headline(outcomes, reference=str(results.get("algos", ["hrtc_beta"])[0]), budget=budget),
         "",
         "## Per algorithm",
         "",

@@ -17,8 +17,8 @@ from hrtc.runlock import RunLock
 ROOT = Path(__file__).resolve().parents[2]
 TRAIN = [sys.executable, str(ROOT / "scripts" / "train.py")]
 # A tiny real run: 1 s episodes, 2 envs x 25 decisions x 5 env steps an update, no recording.
-TINY = ["task=cartpole_swingup", "ppo.num_steps=25", "eval_episodes=1", "progress=false", "logger.mode=off",
-        "+task.env_kwargs.time_limit=1.0"]  # fmt: skip
+TINY = ["task=cartpole_swingup", "learner=ppo", "ppo.num_steps=25", "eval_episodes=1", "progress=false",
+        "logger.mode=off", "+task.env_kwargs.time_limit=1.0"]  # fmt: skip
 HOLD = "import sys, time; from hrtc.runlock import RunLock; RunLock(sys.argv[1]).acquire(); print('held', flush=True); "
 HOLD += "time.sleep(600)"
 
