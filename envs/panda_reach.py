@@ -193,7 +193,8 @@ class PandaReachEnv(gym.Env[np.ndarray, np.ndarray]):
 
     def skill_state(self) -> dict[str, np.ndarray]:
         """Named quantities skills read: ``arm_qpos`` (7,) rad, ``arm_qvel`` (7,) rad/s, ``ee_pos`` (3,) m,
-        ``ee_quat`` (4,), ``target_pos`` (3,) m, ``target_quat`` (4,), ``qpos`` and ``qvel`` (9,)."""
+        ``ee_quat`` (4,), ``target_pos`` (3,) m, ``target_quat`` (4,), ``target_distance`` (1,) m from the end
+        effector to the target, ``qpos`` and ``qvel`` (9,)."""
         ee_pos, ee_quat = self.ee_pose()
         return {
             "qpos": self.data.qpos.copy(),
@@ -204,6 +205,7 @@ class PandaReachEnv(gym.Env[np.ndarray, np.ndarray]):
             "ee_quat": ee_quat,
             "target_pos": self.target_pos.copy(),
             "target_quat": self.target_quat.copy(),
+            "target_distance": np.array([np.linalg.norm(self.target_pos - ee_pos)]),
         }
 
     def _obs_dim(self) -> int:
