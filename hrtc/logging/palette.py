@@ -38,6 +38,13 @@ def shades(color: RGB, n: int) -> list[RGB]:
     return [tuple(round(c + (255 - c) * 0.6 * j / (n - 1)) for c in color) for j in range(n)]  # type: ignore[misc]
 
 
+def greys(n: int) -> list[RGB]:
+    """``n`` neutral shades from near white to mid grey: the series of one view that are not skills."""
+    if n <= 1:
+        return [NEUTRAL][:n]
+    return [(v, v, v) for v in (round(235 - 105 * j / (n - 1)) for j in range(n))]
+
+
 def mpl(color: RGB) -> tuple[float, float, float]:
     """``color`` as matplotlib's (r, g, b) in [0, 1]."""
     return (color[0] / 255, color[1] / 255, color[2] / 255)

@@ -33,7 +33,7 @@ import pandas as pd
 import rerun as rr
 import rerun.blueprint as rrb
 
-from hrtc.logging.palette import NEUTRAL, shades, skill_colors
+from hrtc.logging.palette import NEUTRAL, greys, shades, skill_colors
 from hrtc.logging.trace import EpisodeTrace, RecordingConfig
 
 log = logging.getLogger(__name__)
@@ -63,6 +63,7 @@ _TRAIN_GROUPS = {
     "minibatches (count)": ("train/losses/minibatches", "train/losses/skipped"),
     "steps per second": ("train/charts/SPS", "train/charts/rollout_SPS"),
 }
+_EVAL_RETURNS = ("eval/episode/return", "eval/episode_reward", "eval/episode_reward_std")
 _TRAIN_NAMES = {"train/train/episode_reward": "training return", "train/charts/learning_rate": "learning rate",
                 "train/charts/update_seconds": "update time (s)", "train/episodes": "training episodes"}  # fmt: skip
 
@@ -118,8 +119,7 @@ def blueprint(logged: Collection[str], skill_names: Sequence[str], key_state: st
     train = sorted(path for path in logged if path.startswith("train/"))
     grouped = {path for paths in _TRAIN_GROUPS.values() for path in paths}
     training = views(
-        series("evaluation return", ["eval/episode/return", "eval/episode_reward", "eval/episode_reward_std"],
-               windowed=False),
+        series("evaluation return", _EVAL_RETURNS, windowed=False),
         series("evaluation episode length", ["eval/episode/length"], windowed=False),
         *[series(name, paths, windowed=False) for name, paths in _TRAIN_GROUPS.items()],
         series("skill faults (count)", [p for p in train if p.startswith("train/faults/")], windowed=False),
@@ -236,11 +236,14 @@ class RerunSink:
                     static=True)  # fmt: skip
         actions = list(self.action_names)
         blend = [f"blended/{a}" for a in actions]
-        rec.log("action/blended", rr.SeriesLines(names=blend, colors=shades(NEUTRAL, len(actions)), widths=2.0),
+        rec.log("action/blended", rr.SeriesLines(names=blend, colors=greys(len(actions)), widths=2.0),
                 static=True)  # fmt: skip
         for name, color in zip(self.skill_names, colors, strict=True):
             lines = rr.SeriesLines(names=[f"{name}/{a}" for a in actions], colors=shades(color, len(actions)))
             rec.log(f"skills/{name}/action", lines, static=True)
+        for entity in ("reward", "value"):
+            rec.log(entity, rr.SeriesLines(names=[entity], colors=[NEUTRAL]), static=True)
+        self._style("eval/episode", {key: 0.0 for key in ("return", "length", "global_step", "seed")})
         if self.cfg.key_state:
             rec.log(f"state/{self.cfg.key_state}", rr.SeriesLines(names=[self.cfg.key_state], colors=[NEUTRAL]),
                     static=True)  # fmt: skip
@@ -276,18 +279,28 @@ class RerunSink:
                 rec.log(f"{stream}/{key}", rr.Scalars([value]))
                 self.logged.add(f"{stream}/{key}")
         rec.reset_time()
+        self._style(stream, metrics)
         if stream == "train":
-            self._style_faults(metrics)
             self.send_blueprint()
         if stream == "eval":
             rec.flush()  # an evaluation's episodes are on disk once it is reported: a killed run keeps them
 
-    def _style_faults(self, metrics: Mapping[str, float]) -> None:
-        for name, color in zip(self.skill_names, self.colors, strict=True):
-            entity = f"train/faults/{name}"
-            if f"faults/{name}" in metrics and entity not in self._styled:
-                self.rec.log(entity, rr.SeriesLines(names=[name], colors=[color]), static=True)
-                self._styled.add(entity)
+    def _style(self, stream: str, metrics: Mapping[str, float]) -> None:
+        """Name and colour each metric's series once: a skill's faults in the skill's colour, every other metric in
+        white or grey (never a skill's colour), the members of a shared view in distinct shades."""
+        groups = [*_TRAIN_GROUPS.values(), _EVAL_RETURNS]
+        for key in metrics:
+            entity = f"{stream}/{key}"
+            if entity in self._styled:
+                continue
+            skill = key.removeprefix("faults/")
+            if key.startswith("faults/") and skill in self.skill_names:
+                color = self.colors[self.skill_names.index(skill)]
+            else:
+                group = next((g for g in groups if entity in g), (entity,))
+                color = greys(len(group))[group.index(entity)]
+            self.rec.log(entity, rr.SeriesLines(names=[key.split("/")[-1]], colors=[color]), static=True)
+            self._styled.add(entity)
 
     def close(self) -> None:
         self._flush_samples()
@@ -556,3 +569,49 @@ def _plain(array: Any, i: int = 0) -> Any:
         values = array[i].values
         return [_plain(values, j) for j in range(len(values))]
     return array[i].as_py()
+
+
+# --------------------------------------------------------------------------------------------------- screenshots
+def screenshot(recording: str | Path, out: str | Path, port: int = 9877, settle_s: float = 5.0,
+               env_step: int | None = None) -> Path:  # fmt: skip
+    """Save a PNG of Rerun's own viewer showing ``recording`` on its stored layout, with no display.
+
+    Spawns the viewer that ships with rerun-sdk headless (``rerun --headless``, 1920x1080) on ``port``, opens the
+    file, waits ``settle_s`` seconds for it to load and draw, optionally moves the time cursor to ``env_step`` (by
+    default the viewer stays where the layout opens it: the end), saves the screenshot and quits. Needs a Vulkan
+    driver; on a machine without a GPU Mesa's lavapipe renders on the CPU (``apt-get install mesa-vulkan-drivers``,
+    ``WGPU_BACKEND=vulkan``). Raises :class:`~hrtc.errors.HRTCError` when the viewer cannot start or draw.
+    """
+    import os
+    import shutil
+    import sys
+    import time
+
+    from rerun.experimental import ViewerClient
+
+    from hrtc.errors import HRTCError
+
+    recording, out = Path(recording).resolve(), Path(out).resolve()
+    beside = Path(sys.executable).parent / "rerun"  # the viewer binary in this environment's bin/
+    executable = str(beside) if beside.exists() else shutil.which("rerun")
+    if executable is None:
+        raise HRTCError("no `rerun` viewer executable (it ships with rerun-sdk: is the environment's bin/ on PATH?)")
+    os.environ.setdefault("WGPU_BACKEND", "vulkan")
+    try:
+        viewer = ViewerClient.spawn(headless=True, port=port, hide_welcome_screen=True, executable_path=executable)
+    except Exception as error:
+        raise HRTCError(f"could not start a headless Rerun viewer: {error}") from error
+    try:
+        time.sleep(2.0)  # the viewer's gRPC server comes up
+        viewer.open(str(recording))
+        time.sleep(settle_s)
+        if env_step is not None:
+            viewer.set_time("env_step", sequence=int(env_step), play_state="paused")
+            time.sleep(1.0)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        viewer.save_screenshot(str(out))
+    except Exception as error:
+        raise HRTCError(f"the headless Rerun viewer could not show {recording}: {error}") from error
+    finally:
+        viewer.quit()
+    return out

@@ -180,6 +180,11 @@ def test_every_skill_keeps_its_colour_in_every_view_and_actions_carry_the_task_n
         assert [_rgb(c) for c in static[f"/train/faults/{name}:SeriesLines:colors"]] == [color]
     assert list(static["/action/blended:SeriesLines:names"]) == ["blended/cart_force"]
     assert [_rgb(c) for c in static["/action/blended:SeriesLines:colors"]] == [NEUTRAL]
+    # No other series borrows a skill's colour (reward, value, key state, training and evaluation metrics).
+    others = [c for c in static.index if c.endswith(":SeriesLines:colors") and not c.startswith(("/meta/", "/skills/"))
+              and not c.startswith("/train/faults/")]  # fmt: skip
+    assert len(others) > 20 and {"/reward:SeriesLines:colors", "/state/pole_angle:SeriesLines:colors"} <= set(others)
+    assert not {_rgb(c) for column in others for c in static[column]} & set(colors)
 
 
 def test_layout_of_an_empty_recording_has_no_empty_views(tmp_path):
