@@ -7,14 +7,20 @@ Entities (a skill's config name is its entity name):
   ``meta/weights`` (one series per skill), ``meta/alpha``, ``meta/beta``, ``meta/confidence`` (alpha + beta),
   ``meta/effective_weights`` (skill trees: every node's weight times its parents', one series per tree path),
   ``skills/<name>/action``, ``skills/<name>/<diagnostic>`` (solver status, solve time, cost, faults...),
-  ``action/blended``, ``reward``, ``value``, and ``world/camera`` frames;
-- per evaluation episode, on ``episode``: ``eval/episode/return``, ``eval/episode/length``,
+  ``action/blended`` (series named by the task's ``action_names``), ``reward``, ``value``, ``state/<key_state>`` (the
+  task's key state quantity after the decision), and ``world/camera`` frames (cleared at every episode's start, so an
+  episode without frames shows none);
+- per evaluation episode, on ``episode`` and ``env_step``: ``eval/episode/return``, ``eval/episode/length``,
   ``eval/episode/global_step`` (the training step of the policy that ran it), ``eval/episode/seed``;
 - sampled training decisions (first training env) on ``global_step``: ``meta/weights``, ``meta/alpha``,
   ``meta/beta``, ``meta/confidence``;
 - training metrics (``train.csv``'s columns) as ``train/<name>`` on ``update`` and ``global_step``; evaluation rows as
   ``eval/<name>`` on ``global_step``;
-- static: ``tree`` (the skill library as text) and the series names.
+- static: ``tree`` (the skill library as text), the series names and colours (:mod:`hrtc.logging.palette`: one colour
+  per skill in every view, white and greys for everything else).
+
+The layout (:func:`blueprint`) is sent once per segment, after the first training update or when the sink closes,
+with views only for the entities recorded by then; :func:`read_blueprint` reads it back from a file.
 
 Per-step data is buffered for an episode and sent as columns when it ends (``send_columns``: 0.2 ms for 1000 steps,
 against 0.13 ms per ``log`` call), so recording costs little next to the episode itself.
@@ -83,9 +89,9 @@ def _time_series(name: str, contents: Sequence[str], y: tuple[float, float] | No
 
 
 def blueprint(logged: Collection[str], skill_names: Sequence[str], key_state: str | None = None,
-              window: int = 1000) -> rrb.Blueprint:  # fmt: skip
+              window: int = 1000, plain: bool = False) -> rrb.Blueprint:  # fmt: skip
     """The layout a recording opens on, with views only for the entities in ``logged`` (paths without the leading
-    slash).
+    slash). ``plain``: a policy on raw actions (PPO): ``meta/weights`` holds its outputs, not skill weights.
 
     The viewer opens on the ``env_step`` timeline at the end of the recording (the last evaluation episode): the
     evaluation tab shows the last ``window`` env steps of the weights (fixed [0, 1] axis), the key state, alpha +
@@ -103,7 +109,10 @@ def blueprint(logged: Collection[str], skill_names: Sequence[str], key_state: st
     def views(*items: rrb.View | rrb.Container | None) -> list:
         return [item for item in items if item is not None]
 
-    weights = series("skill weights", ["meta/weights"], (0.0, 1.0))
+    if plain:
+        weights = series("policy output u (plain PPO, no skills)", ["meta/weights"])
+    else:
+        weights = series("skill weights", ["meta/weights"], (0.0, 1.0))
     effective = series("effective weights (skill tree)", ["meta/effective_weights"], (0.0, 1.0))
     state = series(key_state, [f"state/{key_state}"]) if key_state else None
     confidence = series("confidence: alpha + beta", ["meta/confidence"])
@@ -177,8 +186,10 @@ class RerunSink:
                               f"task's action has {self.action_dim}")  # fmt: skip
         self.action_names = tuple(cfg.action_names) or tuple(f"a{i}" for i in range(self.action_dim))
         names = tuple(skill_names)
-        if cfg.action_names and names == tuple(f"a{i}" for i in range(len(names))) and len(names) == self.action_dim:
-            names = self.action_names  # plain PPO: the policy's outputs are the task's action components
+        # Plain PPO (the trainer names its outputs a0, a1...): the policy's outputs are the task's action components.
+        self.plain = names == tuple(f"a{i}" for i in range(self.action_dim))
+        if self.plain:
+            names = self.action_names
         self.skill_names = names
         self.colors = skill_colors(names)
         # Nested skills (an HRTC policy as a skill): every node's effective weight gets a series.
@@ -224,7 +235,7 @@ class RerunSink:
         if self._blueprint_sent:
             return
         window = self.cfg.window or self._longest or 1000
-        self.rec.send_blueprint(blueprint(self.logged, self.skill_names, self.cfg.key_state, window))
+        self.rec.send_blueprint(blueprint(self.logged, self.skill_names, self.cfg.key_state, window, self.plain))
         self._blueprint_sent = True
 
     def _log_static(self, tree: str) -> None:
@@ -238,7 +249,7 @@ class RerunSink:
         blend = [f"blended/{a}" for a in actions]
         rec.log("action/blended", rr.SeriesLines(names=blend, colors=greys(len(actions)), widths=2.0),
                 static=True)  # fmt: skip
-        for name, color in zip(self.skill_names, colors, strict=True):
+        for name, color in zip(self.skill_names if not self.plain else (), colors, strict=False):
             lines = rr.SeriesLines(names=[f"{name}/{a}" for a in actions], colors=shades(color, len(actions)))
             rec.log(f"skills/{name}/action", lines, static=True)
         for entity in ("reward", "value"):

@@ -326,6 +326,24 @@ def test_dominant_spans_cover_the_episode_in_runs_of_one_skill():
     assert review.dominant_spans(weights, x) == [(0.0, 10.0, 0), (10.0, 15.0, 1), (15.0, 20.0, 0), (20.0, 25.0, 1)]
 
 
+def test_plain_ppo_recording_names_the_policy_outputs_by_the_task_and_leaves_their_axis_free(tmp_path):
+    import envs
+
+    env = envs.make("cartpole_swingup", time_limit=0.1)
+    cfg = RecordingConfig(frames=False, action_names=("cart_force",), key_state="pole_angle")
+    sink = RerunSink(tmp_path, cfg, ["a0"], 1, state_source=env.unwrapped.skill_state)
+    u = np.array([0.25], np.float32)
+    run_episodes(env, lambda obs: Decision(obs, u, u), [1, 2], sink)
+    sink.close()
+    env.close()
+    static = read_recording([sink.path], contents="/**", index=None).iloc[0]
+    assert list(static["/meta/weights:SeriesLines:names"]) == ["cart_force"]
+    views = read_blueprint(sink.path)["views"]
+    assert "skill weights" not in views and views["policy output u (plain PPO, no skills)"]["y_range"] is None
+    assert views["pole_angle"]["x_range"] == {"start": {"CursorRelative": -10}, "end": {"CursorRelative": 0}}
+    assert not any(name.endswith(("time (ms)", "status, faults")) for name in views)  # no skills, no diagnostics
+
+
 def test_action_names_must_match_the_task_and_the_key_state_must_exist(tmp_path):
     with pytest.raises(ConfigError, match="task's action has 1"):
         RerunSink(tmp_path / "a", RecordingConfig(action_names=("x", "y")), NAMES, 1)
