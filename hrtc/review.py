@@ -215,7 +215,10 @@ def plot_activations(review: Review, path: str | Path, max_panels: int = 6) -> P
         ax.set_ylim(-0.02, 1.02)
         ax.set_ylabel("weight")
         if has_key:
-            panel["key"].plot(x, part["key"].to_numpy(), color="black", lw=1.2)
+            key = part["key"].to_numpy(dtype=np.float64)
+            if np.nanmax(np.abs(key)) <= np.pi + 1e-9:  # an angle wrapping at +-pi: break the line, don't draw a jump
+                key = np.where(np.concatenate([[False], np.abs(np.diff(key)) > np.pi]), np.nan, key)
+            panel["key"].plot(x, key, color="black", lw=1.2)
             panel["key"].set_ylabel(review.key_state or "key state", fontsize=8)
         if has_beta:
             confidence = np.stack(part["alpha"].to_list()) + np.stack(part["beta"].to_list())
