@@ -210,6 +210,7 @@ class RerunSink:
         self.logged: set[str] = set()  # entity paths holding data: the layout shows these and no others
         self._longest = 0  # the longest evaluation episode so far, env steps
         self._blueprint_sent = False
+        self._renders = False  # frames are on and the task can render: the layout has a camera view
         self._styled: set[str] = set()  # entities whose series names and colours are logged
         self._log_static(tree)
 
@@ -235,7 +236,9 @@ class RerunSink:
         if self._blueprint_sent:
             return
         window = self.cfg.window or self._longest or 1000
-        self.rec.send_blueprint(blueprint(self.logged, self.skill_names, self.cfg.key_state, window, self.plain))
+        # Frames come with later evaluations: a task that renders gets its camera view from the start.
+        logged = self.logged | ({"world/camera"} if self._renders else set())
+        self.rec.send_blueprint(blueprint(logged, self.skill_names, self.cfg.key_state, window, self.plain))
         self._blueprint_sent = True
 
     def _log_static(self, tree: str) -> None:
@@ -342,8 +345,10 @@ class RerunSink:
     def start_evaluation(self, global_step: int, last: bool = False) -> None:
         """Called before each evaluation: decides whether its episodes carry camera frames."""
         self.global_step = int(global_step)
-        self._frames_this_eval = self.cfg.frames and (last or self._eval_index % self.cfg.frame_evals_every == 0)
+        # The frame_evals_every-th, 2 x frame_evals_every-th... evaluation and the last: not the untrained policy's at
+        # step 0 (frames are most of a recording's cost; the viewer opens on the last evaluation).
         self._eval_index += 1
+        self._frames_this_eval = self.cfg.frames and (last or self._eval_index % self.cfg.frame_evals_every == 0)
 
     def begin(self, episode_in_eval: int, seed: int, render: Callable[[], np.ndarray | None] | None) -> EpisodeTrace:
         # The last frame_episodes episodes of an evaluation when its size is known (the viewer opens on the last
@@ -351,6 +356,7 @@ class RerunSink:
         first = self.eval_episodes - self.cfg.frame_episodes if self.eval_episodes else 0
         framed = first <= episode_in_eval < first + self.cfg.frame_episodes
         frames = self._frames_this_eval and framed and render is not None
+        self._renders = self._renders or (self.cfg.frames and render is not None)
         return EpisodeTrace(self.episode, int(seed), self.skill_names, self.cfg.frame_every if frames else 0, render,
                             state=self.state_source, key_state=self.cfg.key_state)  # fmt: skip
 

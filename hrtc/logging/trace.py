@@ -21,7 +21,8 @@ class RecordingConfig:
     mode: ``off`` | ``save`` (``<run_dir>/recording.rrd``) | ``spawn`` (a viewer, and the file) | ``connect`` (a
     running viewer or server at ``url``, and the file).
     frames: camera frames of evaluation episodes, one every ``frame_every`` env steps, ``frame_size`` (height, width)
-    pixels, in ``frame_episodes`` episodes of every ``frame_evals_every``-th evaluation (and of the last one).
+    pixels, in ``frame_episodes`` episodes of the ``frame_evals_every``-th, 2 ``frame_evals_every``-th...
+    evaluation and of the last one (not of the first, the untrained policy's at step 0).
     Frames are the expensive part of a recording: a 240 x 320 MuJoCo frame takes about 37 ms of CPU on this
     machine's software renderer (31 ms at 120 x 160), the rest of an evaluation's record about 0.35 ms a decision.
     When the run knows how many episodes an evaluation has, the framed episodes are its last ones: the viewer opens at

@@ -88,15 +88,16 @@ def test_recording_holds_proposals_actions_rewards_values_diagnostics_and_frames
     # Solver diagnostics of the MPC skills, and each skill's measured compute time.
     for column in ("/skills/balance/status", "/skills/tracker/solve_ms", "/skills/hold/compute_ms"):
         assert rows[column].notna().all(), column
-    # Frames: the last episode of every 2nd evaluation (and of the last), one every 20 env steps.
+    # Frames: the last episode of the 2nd evaluation and of the last (not of the first, at step 0), one every 20 env
+    # steps.
     camera = read_recording(paths, contents="/world/**", index="env_step")
     blobs = camera["/world/camera:EncodedImage:blob"]
     frames = camera[[v is not None and len(v) > 0 for v in blobs]]
     with_frames = [t for t in traces if t.frames]
-    assert [t.episode for t in with_frames] == [1, 5]  # evaluations 0 and 2 of 3, two episodes each
+    assert [t.episode for t in with_frames] == [3, 5]  # evaluations 1 and 2 of 0..2, two episodes each
     assert all(len(t.frames) == EPISODE_STEPS // 20 for t in with_frames)
     assert len(frames) == sum(len(t.frames) for t in with_frames)
-    assert set(frames["episode"]) == {1, 5}
+    assert set(frames["episode"]) == {3, 5}
     assert with_frames[0].frames[0][1].shape == (48, 64, 3)
     # Every episode starts by clearing the camera: an episode without frames shows none, not an older episode's.
     starts = rows.groupby("episode")["env_step"].min() - 5  # the first decision is 5 env steps in
@@ -342,6 +343,7 @@ def test_plain_ppo_recording_names_the_policy_outputs_by_the_task_and_leaves_the
     assert "skill weights" not in views and views["policy output u (plain PPO, no skills)"]["y_range"] is None
     assert views["pole_angle"]["x_range"] == {"start": {"CursorRelative": -10}, "end": {"CursorRelative": 0}}
     assert not any(name.endswith(("time (ms)", "status, faults")) for name in views)  # no skills, no diagnostics
+    assert "camera" not in views  # frames off
 
 
 def test_action_names_must_match_the_task_and_the_key_state_must_exist(tmp_path):
