@@ -25,6 +25,8 @@ from __future__ import annotations
 
 import importlib.util
 import logging
+from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -194,7 +196,8 @@ class PandaReachEnv(gym.Env[np.ndarray, np.ndarray]):
     def skill_state(self) -> dict[str, np.ndarray]:
         """Named quantities skills read: ``arm_qpos`` (7,) rad, ``arm_qvel`` (7,) rad/s, ``ee_pos`` (3,) m,
         ``ee_quat`` (4,), ``target_pos`` (3,) m, ``target_quat`` (4,), ``target_distance`` (1,) m from the end
-        effector to the target, ``qpos`` and ``qvel`` (9,)."""
+        effector to the target, ``target_behind_wall`` (1,): 1.0 for a target behind the wall, else 0.0, ``qpos`` and
+        ``qvel`` (9,)."""
         ee_pos, ee_quat = self.ee_pose()
         return {
             "qpos": self.data.qpos.copy(),
@@ -206,6 +209,7 @@ class PandaReachEnv(gym.Env[np.ndarray, np.ndarray]):
             "target_pos": self.target_pos.copy(),
             "target_quat": self.target_quat.copy(),
             "target_distance": np.array([np.linalg.norm(self.target_pos - ee_pos)]),
+            "target_behind_wall": np.array([float(self._behind_wall(self.target_pos))]),
         }
 
     def _obs_dim(self) -> int:
@@ -370,3 +374,15 @@ class PandaReachEnv(gym.Env[np.ndarray, np.ndarray]):
 def panda_reach(**kwargs: Any) -> PandaReachEnv:
     """Reach end-effector pose targets with a Franka Panda; 150 steps of 0.02 s; see :mod:`envs.panda_reach`."""
     return PandaReachEnv(**kwargs)
+
+
+@dataclass(frozen=True)
+class HandoverRule:
+    """The hand-written reference over panda_reach's skills (:mod:`hrtc.references`): over the wall with ``avoid``
+    until the hand is within ``radius`` (m, horizontally) above a target behind it, then ``reach``."""
+
+    radius: float = 0.03
+
+    def __call__(self, state: Mapping[str, np.ndarray]) -> Mapping[str, float]:
+        above = np.linalg.norm(state["ee_pos"][:2] - state["target_pos"][:2]) < self.radius
+        return {"avoid": 1.0} if state["target_behind_wall"][0] > 0.5 and not above else {"reach": 1.0}

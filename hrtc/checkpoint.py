@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import pickle
 import tempfile
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -40,9 +41,13 @@ def load_checkpoint(path: str | Path) -> dict[str, Any]:
     if not path.is_file():
         raise CheckpointError(f"no checkpoint at {path}")
     try:
-        state = torch.load(path, map_location="cpu", weights_only=True)
+        with warnings.catch_warnings():  # torch warns about the pickle protocol of files it then refuses: noise here
+            warnings.simplefilter("ignore", UserWarning)
+            state = torch.load(path, map_location="cpu", weights_only=True)
     except pickle.UnpicklingError as error:
-        first = str(error).strip().splitlines()[0] if str(error).strip() else "unpickling refused"
+        # torch's message is a paragraph (with advice to load unsafely); its reason follows "WeightsUnpickler error:".
+        text = str(error).split("WeightsUnpickler error:", 1)[-1]
+        first = next((line.strip() for line in text.splitlines() if line.strip()), "unpickling refused")
         raise CheckpointError(
             f"{path} was refused by the safe loader (not plain tensors and containers): {first}"
         ) from None
@@ -55,3 +60,17 @@ def load_checkpoint(path: str | Path) -> dict[str, Any]:
     if missing:
         raise CheckpointError(f"{path} lacks {missing}")
     return state
+
+
+REPO_ROOT = Path(__file__).resolve().parents[1]  # a clone's root: task configs name committed checkpoints from it
+META_KEYS = ("task", "algo", "dist", "obs_dim", "out_dim", "hidden")
+
+
+def resolve_checkpoint(path: str | Path) -> Path:
+    """``path`` as given if it exists, else relative to the repository root (so task configs may name committed
+    checkpoints by a repository path whatever the working directory). Raises :class:`CheckpointError` if neither."""
+    path = Path(path).expanduser()
+    if path.is_file() or path.is_absolute():
+        return path
+    candidate = REPO_ROOT / path
+    return candidate if candidate.is_file() else path

@@ -24,6 +24,9 @@ log = logging.getLogger(__name__)
 
 BlendMode = Literal["sum", "convex"]
 BLEND_MODES: tuple[str, ...] = ("sum", "convex")
+# Skill diagnostics whose key ends so are wall-clock timings (ms): not reproducible, so left out of a ComposedEnv's
+# info unless it was built with diagnostics=True (nested skills' keys, ``<child>/solve_ms``, end so too).
+TIMING_SUFFIX = "_ms"
 
 
 # --------------------------------------------------------------------------------------------------- state filters
@@ -219,15 +222,29 @@ class ComposedEnv(gym.Wrapper):
 
     Each step: every skill proposes for the current state, the action filter blends the proposals with ``w``, the
     task steps with the blended action. ``info`` carries ``weights`` (K,), ``proposals`` (K, A), ``action`` (A,),
-    lifetime ``skill_faults`` and ``skill_calls`` (K,) (also in the reset info) and per-skill diagnostics under
-    ``skills`` (those of the last env step, with ``fault`` 1 if the skill faulted at any step of the decision).
+    ``env_steps`` and per-skill diagnostics under ``skills`` (those of the last env step, with ``fault`` 1 if the
+    skill faulted at any step of the decision).
+
+    ``diagnostics=False`` (the default) keeps ``info`` reproducible: the same seed and weights give the same ``info``,
+    as gymnasium's and stable-baselines3's ``check_env`` require. ``diagnostics=True`` adds what is not reproducible:
+    the skills' wall-clock timings (diagnostics keys ending in ``_ms``: ``compute_ms``, ``solve_ms``, ms) and the
+    lifetime ``skill_faults`` and ``skill_calls`` (K,) (also in the reset info), which the trainer's fault health
+    check and the recordings read.
 
     ``decision_every=k``: one meta-policy decision holds its weights for ``k`` env steps while the skills act at every
     step (the meta-policy and its skills run at distinct rates); the rewards of the ``k`` steps are summed.
     """
 
-    def __init__(self, env: gym.Env, library: SkillLibrary, mode: BlendMode = "sum", decision_every: int = 1) -> None:
+    def __init__(
+        self,
+        env: gym.Env,
+        library: SkillLibrary,
+        mode: BlendMode = "sum",
+        decision_every: int = 1,
+        diagnostics: bool = False,
+    ) -> None:
         super().__init__(env)
+        self.diagnostics = bool(diagnostics)
         if int(decision_every) < 1:
             raise ConfigError(f"decision_every must be >= 1, got {decision_every}")
         self.decision_every = int(decision_every)
@@ -264,7 +281,7 @@ class ComposedEnv(gym.Wrapper):
         self.library.reset(np.random.default_rng(seed) if seed is not None else self.env.np_random)
         self._step = 0
         self._propose()
-        return obs, {**info, **self.fault_counts()}
+        return obs, ({**info, **self.fault_counts()} if self.diagnostics else info)
 
     def step(self, weights: np.ndarray):
         weights = np.asarray(weights, dtype=np.float64).reshape(-1)
@@ -282,15 +299,17 @@ class ComposedEnv(gym.Wrapper):
             if terminated or truncated:
                 break
             self._propose()
+        keep = (lambda key: True) if self.diagnostics else (lambda key: not key.endswith(TIMING_SUFFIX))
         info.update(
             weights=np.clip(weights, 0.0, 1.0),
             proposals=proposals,
             action=action,
             env_steps=self._step,
             skills={
-                name: {**i, "fault": float(f)}
+                name: {**{k: v for k, v in i.items() if keep(k)}, "fault": float(f)}
                 for name, i, f in zip(self.library.names, skill_info, faulted, strict=True)
             },  # fmt: skip
-            **self.fault_counts(),
         )
+        if self.diagnostics:
+            info.update(self.fault_counts())
         return obs, total, terminated, truncated, info

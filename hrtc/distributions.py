@@ -7,8 +7,9 @@ A *head* maps features to a distribution over a ``dim``-vector ``u``:
   clips (HRTC-Normal clips weights to [0, 1] in the action filter; PPO-Normal clips actions to their bounds), and the
   log-probability is that of the unclipped sample, as in CleanRL and SB3.
 
-Every distribution answers ``sample``, ``log_prob`` (summed over the ``dim`` axis), ``entropy`` (summed) and
-``mode`` (the evaluation rule: the Beta *mean* alpha / (alpha + beta), the paper's exploitation rule; the Normal mean).
+Every distribution answers ``sample``, ``rsample`` (reparameterised, for SAC), ``log_prob`` (summed over the ``dim``
+axis), ``entropy`` (summed) and ``mode`` (the evaluation rule: the Beta *mean* alpha / (alpha + beta), the paper's
+exploitation rule; the Normal mean).
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ BETA_EPS = 1e-6
 
 class WeightDistribution(Protocol):
     def sample(self) -> torch.Tensor: ...
+    def rsample(self) -> torch.Tensor: ...
     def log_prob(self, u: torch.Tensor) -> torch.Tensor: ...
     def entropy(self) -> torch.Tensor: ...
     def mode(self) -> torch.Tensor: ...
@@ -39,6 +41,10 @@ class BetaDistribution:
 
     def sample(self) -> torch.Tensor:
         return self._dist.sample().clamp(BETA_EPS, 1.0 - BETA_EPS)
+
+    def rsample(self) -> torch.Tensor:
+        """A sample differentiable in alpha and beta (implicit reparameterisation, Figurnov et al. 2018)."""
+        return self._dist.rsample().clamp(BETA_EPS, 1.0 - BETA_EPS)
 
     def log_prob(self, u: torch.Tensor) -> torch.Tensor:
         return self._dist.log_prob(u.clamp(BETA_EPS, 1.0 - BETA_EPS)).sum(-1)
@@ -65,6 +71,10 @@ class NormalDistribution:
 
     def sample(self) -> torch.Tensor:
         return self._dist.sample()
+
+    def rsample(self) -> torch.Tensor:
+        """``mean + std * eps``: differentiable in the mean and std."""
+        return self._dist.rsample()
 
     def log_prob(self, u: torch.Tensor) -> torch.Tensor:
         return self._dist.log_prob(u).sum(-1)

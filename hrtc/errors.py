@@ -35,3 +35,7 @@ class CheckpointError(HRTCError):
 
 class SkillError(HRTCError):
     """A skill failed in a way that cannot be recovered (its construction, or repeated faults)."""
+
+
+class RunLockedError(HRTCError):
+    """A run directory is being written by another live process (see :mod:`hrtc.runlock`)."""

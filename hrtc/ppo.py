@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 import torch
@@ -132,3 +132,113 @@ def ppo_update(
         "losses/skipped": float(skipped),
         "losses/minibatches": float(total),
     }
+
+
+# --------------------------------------------------------------------------------------------------- the learner
+PPO_COLUMNS = ("losses/policy_loss", "losses/value_loss", "losses/entropy", "losses/approx_kl", "losses/clipfrac",
+               "losses/explained_variance", "losses/skipped", "charts/learning_rate")  # fmt: skip
+
+
+class Rollout:
+    """On-policy storage for ``num_steps`` vector steps of ``num_envs`` envs: obs, samples, log-probabilities,
+    (scaled, bootstrapped) rewards, episode ends and values, each (T, N, ...)."""
+
+    def __init__(self, num_steps: int, num_envs: int, obs_dim: int, sample_dim: int) -> None:
+        self.obs = np.zeros((num_steps, num_envs, obs_dim), np.float32)
+        self.samples = np.zeros((num_steps, num_envs, sample_dim), np.float32)
+        self.logprobs, self.rewards, self.dones, self.values = (np.zeros((num_steps, num_envs), np.float32)
+                                                                 for _ in range(4))  # fmt: skip
+        self.t = 0
+
+    @property
+    def full(self) -> bool:
+        return self.t == self.obs.shape[0]
+
+    def batch(self, advantages: np.ndarray, returns: np.ndarray) -> Batch:
+        """The rollout flattened over (T, N) with its advantages and returns."""
+        flat = self.obs.shape[0] * self.obs.shape[1]
+        return Batch(
+            torch.as_tensor(self.obs.reshape(flat, -1)),
+            torch.as_tensor(self.samples.reshape(flat, -1)),
+            torch.as_tensor(self.logprobs.reshape(-1)),
+            torch.as_tensor(advantages.reshape(-1), dtype=torch.float32),
+            torch.as_tensor(returns.reshape(-1), dtype=torch.float32),
+            torch.as_tensor(self.values.reshape(-1)),
+        )
+
+
+class PPOLearner:
+    """The paper's learner: rollouts of ``cfg.num_steps`` decisions per env, GAE, K epochs of the clipped update.
+
+    Args:
+        policy: the actor-critic (meta-policy and master critic).
+        cfg: the PPO settings.
+        num_envs, gamma: the vector envs and the discount per decision (``gamma ** decision_every``).
+        num_updates: updates in the whole run (for the learning-rate schedule).
+        generator: draws the minibatch order.
+    """
+
+    update_while_stepping = False
+    columns = PPO_COLUMNS
+
+    def __init__(self, policy: nn.Module, cfg: PPOConfig, num_envs: int, gamma: float, num_updates: int,
+                 generator: torch.Generator) -> None:  # fmt: skip
+        from hrtc.normalize import RewardScaler
+
+        self.policy, self.cfg, self.gamma, self.num_updates = policy, cfg, gamma, num_updates
+        self.generator = generator
+        self.optimizer = torch.optim.Adam(policy.parameters(), lr=cfg.learning_rate, eps=1e-5)
+        self.reward_scaler = RewardScaler(num_envs, gamma) if cfg.scale_reward else None
+        self.rollout = Rollout(cfg.num_steps, num_envs, policy.obs_dim, policy.out_dim)
+        self.updates = 0
+        self._pending: tuple[np.ndarray, np.ndarray] | None = None  # log-probabilities and values of the last act
+
+    @torch.no_grad()
+    def act(self, obs: np.ndarray) -> tuple[np.ndarray, object]:
+        tobs = torch.as_tensor(obs)
+        distribution = self.policy.distribution(tobs)
+        u = distribution.sample()
+        self._pending = (distribution.log_prob(u).numpy(), self.policy.value(tobs).numpy())
+        return u.numpy(), distribution
+
+    def observe(self, step: Any) -> None:
+        ro, t = self.rollout, self.rollout.t
+        done = step.terminated | step.truncated
+        rewards = self.reward_scaler(step.rewards, done) if self.reward_scaler else step.rewards.astype(np.float64)
+        if step.truncated.any():  # bootstrap the time limit: it is not a terminal state
+            idx = np.flatnonzero(step.truncated)
+            with torch.no_grad():
+                rewards[idx] += self.gamma * self.policy.value(torch.as_tensor(step.next_obs[idx])).numpy()
+        ro.obs[t], ro.samples[t], ro.rewards[t], ro.dones[t] = step.obs, step.samples, rewards, done
+        ro.logprobs[t], ro.values[t] = self._pending  # type: ignore[misc]
+        ro.t += 1
+        self._next_obs = step.next_obs
+
+    @property
+    def at_boundary(self) -> bool:
+        return self.rollout.t == 0
+
+    def update(self) -> dict[str, float] | None:
+        if not self.rollout.full:
+            return None
+        if self.cfg.anneal_lr:
+            self.optimizer.param_groups[0]["lr"] = (1.0 - self.updates / self.num_updates) * self.cfg.learning_rate
+        ro = self.rollout
+        with torch.no_grad():
+            next_value = self.policy.value(torch.as_tensor(self._next_obs)).numpy()
+        adv, ret = compute_gae(ro.rewards, ro.values, ro.dones, next_value, self.gamma, self.cfg.gae_lambda)
+        stats = ppo_update(self.policy, self.optimizer, ro.batch(adv, ret), self.cfg, self.generator)
+        ro.t = 0
+        self.updates += 1
+        stats["charts/learning_rate"] = self.optimizer.param_groups[0]["lr"]
+        return stats
+
+    def state_dict(self) -> dict[str, Any]:
+        return {"optimizer": self.optimizer.state_dict(), "updates": self.updates,
+                "reward_rms": self.reward_scaler.rms.state_dict() if self.reward_scaler else {}}  # fmt: skip
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.optimizer.load_state_dict(state["optimizer"])
+        self.updates = int(state.get("updates", 0))
+        if self.reward_scaler and state.get("reward_rms"):
+            self.reward_scaler.rms.load_state_dict(state["reward_rms"])

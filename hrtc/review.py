@@ -233,6 +233,7 @@ def plot_activations(review: Review, path: str | Path, max_panels: int = 6) -> P
     axes[-1, 0].set_xlabel("env steps into the episode")
     fig.tight_layout()
     path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)  # scripts/review.py --out may name a folder still to be made
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path

@@ -21,16 +21,18 @@ import gymnasium as gym
 import numpy as np
 import torch
 
-from hrtc.checkpoint import load_checkpoint, save_checkpoint
+from hrtc.checkpoint import load_checkpoint, resolve_checkpoint, save_checkpoint
 from hrtc.composition import BLEND_MODES, ComposedEnv, build_library
 from hrtc.distributions import BetaDistribution
 from hrtc.encoders import build_encoder, check_encoder_spec
 from hrtc.errors import CheckpointError, ConfigError, HRTCError, SkillError, UnknownNameError
+from hrtc.learner import Learner, Step
 from hrtc.logging import CsvSink, Sink
 from hrtc.logging.trace import Recorder, RecordingConfig
 from hrtc.normalize import ObsNormalizer, RewardScaler
 from hrtc.policy import ActorCritic
-from hrtc.ppo import Batch, PPOConfig, compute_gae, ppo_update
+from hrtc.ppo import PPOConfig, PPOLearner
+from hrtc.sac import SACConfig, SACLearner
 from hrtc.tree import describe
 
 log = logging.getLogger(__name__)
@@ -39,11 +41,9 @@ ROOT_CONF = Path(__file__).resolve().parent / "conf"  # the Hydra configs shippe
 
 ALGOS = ("hrtc", "ppo")
 DISTS = ("beta", "normal")
-TRAIN_COLUMNS = (
-    "episodes", "train/episode_reward", "losses/policy_loss", "losses/value_loss", "losses/entropy",
-    "losses/approx_kl", "losses/clipfrac", "losses/explained_variance", "losses/skipped", "charts/learning_rate",
-    "charts/SPS", "charts/rollout_SPS", "charts/update_seconds",
-)  # fmt: skip
+LEARNERS = ("ppo", "sac")
+# train.csv: these, with the learner's own columns after the first two and each skill's fault count at the end.
+TRAIN_COLUMNS = ("episodes", "train/episode_reward", "charts/SPS", "charts/rollout_SPS", "charts/update_seconds")
 EVAL_COLUMNS = ("episode_reward", "episode_reward_std", "episodes", "train_episodes", "wall_seconds")
 
 
@@ -55,6 +55,7 @@ class RunConfig:
     skills: Mapping[str, Any]
     algo: str = "hrtc"
     dist: str = "beta"
+    learner: str = "ppo"
     beta_init_bias: float = 0.0
     action_filter: str = "sum"
     decision_every: int = 1
@@ -74,6 +75,7 @@ class RunConfig:
     solve_threshold: float | None = None
     env_kwargs: Mapping[str, Any] = field(default_factory=dict)
     ppo: PPOConfig = field(default_factory=PPOConfig)
+    sac: SACConfig = field(default_factory=SACConfig)
     logger: RecordingConfig = field(default_factory=lambda: RecordingConfig(mode="off"))
     encoder: Mapping[str, Any] | None = None  # an image encoder for pixel tasks (hrtc.encoders), e.g. {name: conv}
 
@@ -82,6 +84,8 @@ class RunConfig:
             raise UnknownNameError("algo", self.algo, ALGOS)
         if self.dist not in DISTS:
             raise UnknownNameError("dist", self.dist, DISTS)
+        if self.learner not in LEARNERS:
+            raise UnknownNameError("learner", self.learner, LEARNERS)
         if self.action_filter not in BLEND_MODES:
             raise UnknownNameError("action filter mode", self.action_filter, BLEND_MODES)
         if self.vector not in ("async", "sync"):
@@ -119,13 +123,21 @@ class RunConfig:
         cfg = dict(cfg)
         task, algo, dist = dict(cfg.pop("task")), dict(cfg.pop("algo")), dict(cfg.pop("dist"))
         ppo_cfg = dict(cfg.pop("ppo", {}) or {})
+        sac_cfg = dict(cfg.pop("sac", {}) or {})
         logger = RecordingConfig.from_mapping(cfg.pop("logger", None) or {"mode": "off"})
-        ppo_names = {f.name for f in fields(PPOConfig)}
-        unknown = set(ppo_cfg) - ppo_names
-        if unknown:
-            raise ConfigError(f"unknown ppo keys {sorted(unknown)}; valid: {sorted(ppo_names)}")
-        top = {f.name for f in fields(cls)} - {"task", "skills", "algo", "dist", "action_filter", "ppo",
-                                                "solve_threshold", "env_kwargs", "logger"}  # fmt: skip
+        for block, settings in (("ppo", ppo_cfg), ("sac", sac_cfg)):
+            names = {f.name for f in fields(PPOConfig if block == "ppo" else SACConfig)}
+            unknown = set(settings) - names
+            if unknown:
+                raise ConfigError(f"unknown {block} keys {sorted(unknown)}; valid: {sorted(names)}")
+        if "q_hidden" in sac_cfg:
+            sac_cfg["q_hidden"] = tuple(int(h) for h in sac_cfg["q_hidden"])
+        # learner=auto: HRTC learns with the task's declared learner (task.learner, PPO if none); flat RL with PPO.
+        learner = str(cfg.pop("learner", "auto"))
+        if learner == "auto":
+            learner = str(task.get("learner", "ppo")) if algo.get("name") == "hrtc" else "ppo"
+        top = {f.name for f in fields(cls)} - {"task", "skills", "algo", "dist", "action_filter", "ppo", "sac",
+                                                "learner", "solve_threshold", "env_kwargs", "logger"}  # fmt: skip
         unknown = set(cfg) - top - {"run_dir", "resume"}
         if unknown:
             raise ConfigError(f"unknown config keys {sorted(unknown)}; valid: {sorted(top)}")
@@ -142,7 +154,9 @@ class RunConfig:
             decision_every=algo.get("decision_every", 1),
             dist=str(dist.get("name")),
             beta_init_bias=float(dist.get("init_bias", 0.0)),
+            learner=learner,
             ppo=PPOConfig(**ppo_cfg),
+            sac=SACConfig(**sac_cfg),
             logger=logger,
             **kwargs,
         )
@@ -150,13 +164,15 @@ class RunConfig:
 
 # --------------------------------------------------------------------------------------------------- environments
 def make_env(task: str, algo: str, skills: Mapping[str, Any], action_filter: str = "sum",
-             env_kwargs: Mapping[str, Any] | None = None, decision_every: int = 1) -> gym.Env:  # fmt: skip
-    """The environment the policy acts in: the task itself (``ppo``) or the task composed with its skills (``hrtc``)."""
+             env_kwargs: Mapping[str, Any] | None = None, decision_every: int = 1,
+             diagnostics: bool = True) -> gym.Env:  # fmt: skip
+    """The environment the policy acts in: the task itself (``ppo``) or the task composed with its skills (``hrtc``).
+    ``diagnostics``: the composed env's timings and fault counters in ``info`` (see :class:`ComposedEnv`)."""
     import envs
 
     env = envs.make(task, **dict(env_kwargs or {}))
     if algo == "hrtc":
-        env = ComposedEnv(env, build_library(skills), action_filter, decision_every)  # type: ignore[arg-type]
+        env = ComposedEnv(env, build_library(skills), action_filter, decision_every, diagnostics)  # type: ignore[arg-type]
     return env
 
 
@@ -181,6 +197,22 @@ def policy_for(cfg: RunConfig, obs_dim: int, space: gym.spaces.Box) -> ActorCrit
     encoder = build_encoder(cfg.encoder, obs_dim) if cfg.encoder is not None else None
     return ActorCritic(obs_dim, int(space.shape[0]), cfg.dist, cfg.hidden, centre, log_std, cfg.beta_init_bias,
                        encoder=encoder)  # fmt: skip
+
+
+def learner_settings(cfg: RunConfig) -> PPOConfig | SACConfig:
+    """The settings block of the run's learner."""
+    return cfg.sac if cfg.learner == "sac" else cfg.ppo
+
+
+def build_learner(cfg: RunConfig, policy: ActorCritic, steps_per_decision: int, generator: torch.Generator) -> Learner:
+    """The run's learner for ``policy``, with its discount per decision (``gamma ** steps_per_decision``) as
+    ``learner.gamma``."""
+    settings = learner_settings(cfg)
+    gamma = settings.gamma**steps_per_decision
+    if cfg.learner == "sac":
+        return SACLearner(policy, cfg.sac, cfg.num_envs, gamma, generator)
+    num_updates = -(-cfg.steps // (cfg.ppo.num_steps * cfg.num_envs * steps_per_decision))
+    return PPOLearner(policy, cfg.ppo, cfg.num_envs, gamma, num_updates, generator)
 
 
 def normalize_obs(normalizer: ObsNormalizer | None, obs: np.ndarray, update: bool = False) -> np.ndarray:
@@ -309,6 +341,32 @@ def _first(error: BaseException) -> str:
     return str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
 
 
+def load_policy_weights(trainer: Any, path: str | Path) -> dict[str, Any]:
+    """Start ``trainer`` (a :class:`hrtc.trainer.Trainer`, before ``train()``; it needs ``cfg``, ``skill_names``,
+    ``policy``, ``normalizer`` and ``reward_scaler``) from a checkpoint's policy, for fine-tuning on a changed task.
+
+    Copies the actor-critic weights, the observation normaliser and the reward scaler's statistics (the critic's
+    scale); the optimiser, counters and RNGs stay fresh. The checkpoint must have the same algorithm, distribution,
+    network sizes and skill names, else :class:`CheckpointError`. Returns the checkpoint's meta."""
+    path = resolve_checkpoint(path)
+    state = load_checkpoint(path)
+    meta = state["meta"]
+    cfg = trainer.cfg
+    mine = {"algo": cfg.algo, "dist": cfg.dist, "skills": list(trainer.skill_names), "hidden": list(cfg.hidden),
+            "obs_dim": trainer.policy.obs_dim, "out_dim": trainer.policy.out_dim}  # fmt: skip
+    for key, value in mine.items():
+        theirs = meta.get(key)
+        if (list(theirs) if isinstance(theirs, list | tuple) else theirs) != value:
+            raise CheckpointError(f"cannot fine-tune from {path}: its {key} is {theirs!r}, this run's is {value!r}")
+    trainer.policy.load_state_dict(state["policy"])
+    if trainer.normalizer is not None and state["obs_rms"]:
+        trainer.normalizer.rms.load_state_dict(state["obs_rms"])
+    reward_rms = state.get("reward_rms") or (state.get("optimizer") or {}).get("reward_rms")  # older layout first
+    if trainer.reward_scaler is not None and reward_rms:
+        trainer.reward_scaler.rms.load_state_dict(reward_rms)
+    return dict(meta)
+
+
 def eval_seeds(seed: int, episodes: int) -> list[int]:
     """Evaluation episode seeds: the same at every evaluation, and disjoint from the training envs' reset seeds
     (``1000 * seed + ...``, below a million for any seed under 1000)."""
@@ -319,8 +377,9 @@ def eval_seeds(seed: int, episodes: int) -> list[int]:
 class Trainer:
     """One training run writing into ``run_dir``: ``train.csv``, ``eval.csv``, ``checkpoints/``.
 
-    ``sinks`` receive the same rows as the CSVs (e.g. a Rerun recording); ``resume`` continues from
-    ``checkpoints/last.pt``.
+    The loop (:meth:`train`) collects decisions in vector envs and hands them to the learner (:mod:`hrtc.learner`:
+    PPO or SAC), evaluates with the distribution's mode on a schedule, checkpoints, checks health. ``sinks`` receive
+    the same rows as the CSVs (e.g. a Rerun recording); ``resume`` continues from ``checkpoints/last.pt``.
     """
 
     def __init__(self, cfg: RunConfig, run_dir: str | Path, sinks: Sequence[Sink] = (), resume: bool = False) -> None:
@@ -338,12 +397,11 @@ class Trainer:
         self.skill_names: tuple[str, ...] = getattr(self.eval_env, "skill_names", ())
         obs_dim = int(np.prod(self.eval_env.observation_space.shape))
         self.policy = policy_for(cfg, obs_dim, space)
-        self.optimizer = torch.optim.Adam(self.policy.parameters(), lr=cfg.ppo.learning_rate, eps=1e-5)
-        self.normalizer = ObsNormalizer((obs_dim,)) if cfg.ppo.normalize_obs else None
         # One decision spans decision_every env steps: discount per decision accordingly.
         self.steps_per_decision = cfg.decision_every if cfg.algo == "hrtc" else 1
-        self.gamma = cfg.ppo.gamma**self.steps_per_decision
-        self.reward_scaler = RewardScaler(cfg.num_envs, self.gamma) if cfg.ppo.scale_reward else None
+        self.learner = build_learner(cfg, self.policy, self.steps_per_decision, self.generator)
+        self.gamma = self.learner.gamma
+        self.normalizer = ObsNormalizer((obs_dim,)) if learner_settings(cfg).normalize_obs else None
         self.global_step, self.update, self.episodes = 0, 0, 0
         self.best_eval = -np.inf
         self.wall_offset = 0.0  # wall time of the run before a resume, s
@@ -351,15 +409,14 @@ class Trainer:
         if self.skill_names:  # the skills' first proposals: a wrong action size is an error now, not in a worker
             self.eval_env.reset(seed=cfg.seed)
         if cfg.init_from and not resume:  # fine-tune: start from a trained policy of the same shape
-            from skills.learned import load_policy_weights
-
             load_policy_weights(self, cfg.init_from)
         if resume and not (self.ckpt_dir / "last.pt").exists():
             log.warning("resume: no checkpoint in %s yet; starting from scratch", self.ckpt_dir)
             resume = False
         if resume:
             self._restore(self.ckpt_dir / "last.pt")
-        columns = {"train": (*TRAIN_COLUMNS, *(f"faults/{name}" for name in self.skill_names)), "eval": EVAL_COLUMNS}
+        columns = {"train": (*TRAIN_COLUMNS[:2], *self.learner.columns, *TRAIN_COLUMNS[2:],
+                             *(f"faults/{name}" for name in self.skill_names)), "eval": EVAL_COLUMNS}  # fmt: skip
         # A resumed run continues its CSVs from the checkpoint's step: rows written after it (the work the crash
         # lost, to be redone) are dropped, so no row is duplicated.
         csv_sink = CsvSink(self.run_dir, columns, append=resume, keep_until=self.global_step if resume else None)
@@ -379,13 +436,17 @@ class Trainer:
             if cfg.logger.frames:
                 self.render = frame_source(self.eval_env, cfg.logger.frame_size)
 
+    @property
+    def reward_scaler(self) -> RewardScaler | None:
+        """PPO's reward scaler (None for SAC or when PPO does not scale)."""
+        return getattr(self.learner, "reward_scaler", None)
+
     # ------------------------------------------------------------------ checkpoints
     def state_dict(self) -> dict[str, Any]:
         return {
             "policy": self.policy.state_dict(),
-            "optimizer": self.optimizer.state_dict(),
+            "optimizer": self.learner.state_dict(),  # the learner's whole training state (optimisers, buffers...)
             "obs_rms": self.normalizer.rms.state_dict() if self.normalizer else {},
-            "reward_rms": self.reward_scaler.rms.state_dict() if self.reward_scaler else {},
             "global_step": self.global_step,
             "update": self.update,
             "episodes": self.episodes,
@@ -394,13 +455,14 @@ class Trainer:
             "rng": {
                 "torch": torch.get_rng_state(),
                 "generator": self.generator.get_state(),
-                "numpy": torch.from_numpy(np.random.get_state()[1].astype(np.int64)),  # noqa: NPY002
-                "python": list(random.getstate()[1]),
+                "numpy": _numpy_rng_state(),
+                "python": _python_rng_state(),
             },
             "meta": {
                 "task": self.cfg.task,
                 "algo": self.cfg.algo,
                 "dist": self.cfg.dist,
+                "learner": self.cfg.learner,
                 "skills": list(self.skill_names),
                 "obs_dim": self.policy.obs_dim,
                 "out_dim": self.policy.out_dim,
@@ -417,30 +479,34 @@ class Trainer:
         }
 
     def save(self, name: str = "last.pt") -> Path:
-        return save_checkpoint(self.ckpt_dir / name, self.state_dict())
+        state = self.state_dict()
+        if name != "last.pt":  # only last.pt resumes: others keep the policy, not the learner's buffers
+            state["optimizer"] = {}
+        return save_checkpoint(self.ckpt_dir / name, state)
 
     def _restore(self, path: Path) -> None:
         state = load_checkpoint(path)
         meta = state["meta"]
         mine = self.state_dict()["meta"]
-        if meta["skills"] != mine["skills"] or meta["obs_dim"] != mine["obs_dim"] or meta["out_dim"] != mine["out_dim"]:
+        keys = ("skills", "obs_dim", "out_dim", "learner")
+        if any(meta.get(k, "ppo" if k == "learner" else None) != mine[k] for k in keys):
             raise CheckpointError(
-                f"{path} was trained with skills {meta['skills']} (obs {meta['obs_dim']}, out {meta['out_dim']}); "
-                f"this run has {mine['skills']} (obs {mine['obs_dim']}, out {mine['out_dim']})"
+                f"{path} was trained with skills {meta['skills']} (obs {meta['obs_dim']}, out {meta['out_dim']}, "
+                f"learner {meta.get('learner', 'ppo')}); this run has {mine['skills']} (obs {mine['obs_dim']}, out "
+                f"{mine['out_dim']}, learner {mine['learner']})"
             )
         self.policy.load_state_dict(state["policy"])
-        self.optimizer.load_state_dict(state["optimizer"])
+        self.learner.load_state_dict(state["optimizer"])
         if self.normalizer and state["obs_rms"]:
             self.normalizer.rms.load_state_dict(state["obs_rms"])
-        if self.reward_scaler and state.get("reward_rms"):
-            self.reward_scaler.rms.load_state_dict(state["reward_rms"])
         self.global_step, self.update = int(state["global_step"]), int(state["update"])
         self.episodes, self.best_eval = int(state["episodes"]), float(state["best_eval"])
         self.wall_offset = float(state.get("wall_seconds", 0.0))
         rng = state["rng"]
         torch.set_rng_state(rng["torch"])
         self.generator.set_state(rng["generator"])
-        np.random.set_state(("MT19937", rng["numpy"].numpy().astype(np.uint32), 624, 0, 0.0))  # noqa: NPY002
+        _set_numpy_rng_state(rng["numpy"])
+        _set_python_rng_state(rng["python"])
         log.info("resumed from %s at step %d", path, self.global_step)
 
     # ------------------------------------------------------------------ evaluation
@@ -487,120 +553,98 @@ class Trainer:
         return normalize_obs(self.normalizer, obs, update)
 
     def train(self) -> dict[str, float]:
-        """Run until ``cfg.steps`` env steps; returns the final evaluation and throughput."""
-        cfg, ppo = self.cfg, self.cfg.ppo
-        n, t_len = cfg.num_envs, ppo.num_steps
-        batch_size = n * t_len
-        env_steps_per_update = batch_size * self.steps_per_decision
-        num_updates = -(-cfg.steps // env_steps_per_update)
+        """Run until ``cfg.steps`` env steps; returns the final evaluation and throughput.
+
+        Each vector step: the learner decides, the envs step (the learner updates meanwhile if it can), the learner
+        observes and updates. At each point where the learner holds no pending data (after every PPO update; every
+        step for SAC) the schedule runs: a ``train.csv`` row when the learner reports one, health checks,
+        evaluation, checkpoint, progress."""
+        cfg, learner, n = self.cfg, self.learner, self.cfg.num_envs
+        env_steps_per_step = n * self.steps_per_decision
         vec = self._vector_env()
         space = self.eval_env.action_space
-        obs_dim = self.policy.obs_dim
-        buf_obs = np.zeros((t_len, n, obs_dim), np.float32)
-        buf_u = np.zeros((t_len, n, self.policy.out_dim), np.float32)
-        buf_logp, buf_rew, buf_done, buf_val = (np.zeros((t_len, n), np.float32) for _ in range(4))
         ep_return = np.zeros(n)
         recent_returns: list[float] = []
         faults = np.zeros((n, len(self.skill_names)))  # lifetime faults and calls of each env's skills
         calls = np.zeros((n, len(self.skill_names)))
-        skipped_in_a_row = 0
-        committed = (self.global_step, self.episodes)  # the state at the last finished update
+        skipped_in_a_row, decisions = 0, 0
+        committed = (self.global_step, self.episodes)  # the state at the last point with nothing pending
         self._start = time.perf_counter()
         next_eval = (self.global_step // cfg.eval_every + 1) * cfg.eval_every
         next_ckpt = (self.global_step // cfg.checkpoint_every + 1) * cfg.checkpoint_every
         bar = _progress(cfg.steps, self.global_step, cfg.progress, f"{cfg.algo}-{cfg.dist} {cfg.task}")
         sample_every = cfg.logger.train_sample_every
         last_eval = float("nan")
+        row_start, row_step, update_seconds = time.perf_counter(), self.global_step, 0.0
         previous_sigterm = signal.signal(signal.SIGTERM, _interrupt)  # `kill` saves a checkpoint, as Ctrl-C does
         try:
             # Training envs: seed + i on the first reset of this (or a resumed) run, continuing their own RNG after.
             obs, _ = vec.reset(seed=[cfg.seed * 1_000 + self.update * n + i for i in range(n)])
             if self.global_step == 0:
                 last_eval = self.evaluate()
-            while self.update < num_updates:
-                tic = time.perf_counter()
-                if ppo.anneal_lr:
-                    frac = 1.0 - self.update / num_updates
-                    self.optimizer.param_groups[0]["lr"] = frac * ppo.learning_rate
-                for t in range(t_len):
-                    nobs = self._normalize(obs, update=True)
-                    with torch.no_grad():
-                        tobs = torch.as_tensor(nobs)
-                        dist = self.policy.distribution(tobs)
-                        u = dist.sample()
-                        buf_logp[t] = dist.log_prob(u).numpy()
-                        buf_val[t] = self.policy.value(tobs).numpy()
-                    u_np = u.numpy()
-                    buf_obs[t], buf_u[t] = nobs, u_np
-                    env_action = to_env_action(u_np, space, cfg.dist)
-                    if self.recorder is not None and sample_every and t % sample_every == 0:
-                        alpha, beta = _beta_parameters(dist)
-                        self.recorder.sample(self.global_step, env_action[0], alpha, beta)
-                    obs, reward, terminated, truncated, info = vec.step(env_action)
-                    done = terminated | truncated
-                    ep_return += reward
-                    if "skill_faults" in info:
-                        mask = info.get("_skill_faults", np.ones(n, bool))
-                        faults[mask], calls[mask] = info["skill_faults"][mask], info["skill_calls"][mask]
+            while self.global_step < cfg.steps or not learner.at_boundary:  # PPO finishes its last rollout
+                nobs = self._normalize(obs, update=True)
+                u, distribution = learner.act(nobs)
+                env_action = to_env_action(u, space, cfg.dist)
+                if self.recorder is not None and sample_every and decisions % (sample_every * n) == 0:
+                    alpha, beta = _beta_parameters(distribution)
+                    self.recorder.sample(self.global_step, env_action[0], alpha, beta)
+                decisions += n
+                work = learner.update if learner.update_while_stepping else _no_update
+                (obs, reward, terminated, truncated, info), (stats, seconds) = _step_while(vec, env_action, work)
+                update_seconds += seconds
+                done = terminated | truncated
+                ep_return += reward
+                if "skill_faults" in info:
+                    mask = info.get("_skill_faults", np.ones(n, bool))
+                    faults[mask], calls[mask] = info["skill_faults"][mask], info["skill_calls"][mask]
+                for i in np.flatnonzero(done):
+                    recent_returns.append(float(ep_return[i]))
+                    self.episodes += 1
+                    ep_return[i] = 0.0
+                next_obs = obs
+                if done.any():  # the true successor of an ended episode is its final observation
+                    next_obs = obs.copy()
                     for i in np.flatnonzero(done):
-                        recent_returns.append(float(ep_return[i]))
-                        self.episodes += 1
-                        ep_return[i] = 0.0
-                    scaled = self.reward_scaler(reward, done) if self.reward_scaler else reward.astype(np.float64)
-                    if truncated.any():  # bootstrap the time limit: it is not a terminal state
-                        idx = np.flatnonzero(truncated)
-                        final = np.stack([info["final_obs"][i] for i in idx])
-                        with torch.no_grad():
-                            v_final = self.policy.value(torch.as_tensor(self._normalize(final))).numpy()
-                        scaled[idx] += self.gamma * v_final
-                    buf_rew[t], buf_done[t] = scaled, done
-                    self.global_step += n * self.steps_per_decision
-                rollout_seconds = time.perf_counter() - tic
-                with torch.no_grad():
-                    next_value = self.policy.value(torch.as_tensor(self._normalize(obs))).numpy()
-                adv, ret = compute_gae(buf_rew, buf_val, buf_done, next_value, self.gamma, ppo.gae_lambda)
-                batch = Batch(
-                    torch.as_tensor(buf_obs.reshape(batch_size, obs_dim)),
-                    torch.as_tensor(buf_u.reshape(batch_size, -1)),
-                    torch.as_tensor(buf_logp.reshape(-1)),
-                    torch.as_tensor(adv.reshape(-1), dtype=torch.float32),
-                    torch.as_tensor(ret.reshape(-1), dtype=torch.float32),
-                    torch.as_tensor(buf_val.reshape(-1)),
-                )
-                tu = time.perf_counter()
-                stats = ppo_update(self.policy, self.optimizer, batch, ppo, self.generator)
-                self.update += 1
+                        next_obs[i] = info["final_obs"][i]
+                learner.observe(Step(nobs, u, reward, self._normalize(next_obs), terminated, truncated))
+                self.global_step += env_steps_per_step
+                if not learner.update_while_stepping:
+                    stats, seconds = _timed(learner.update)
+                    update_seconds += seconds
+                if not learner.at_boundary:
+                    continue
                 committed = (self.global_step, self.episodes)
-                all_skipped = stats["losses/skipped"] == stats["losses/minibatches"]
-                skipped_in_a_row = skipped_in_a_row + 1 if all_skipped else 0
-                elapsed = time.perf_counter() - tic
-                train_return = float(np.mean(recent_returns)) if recent_returns else float("nan")
-                recent_returns.clear()
-                stats.update({
-                    "episodes": self.episodes,
-                    "train/episode_reward": train_return,
-                    "charts/learning_rate": self.optimizer.param_groups[0]["lr"],
-                    "charts/SPS": env_steps_per_update / elapsed,
-                    "charts/update_seconds": time.perf_counter() - tu,
-                    "charts/rollout_SPS": env_steps_per_update / rollout_seconds,
-                })  # fmt: skip
-                for k, name in enumerate(self.skill_names):
-                    stats[f"faults/{name}"] = float(faults[:, k].sum())
-                self._write("train", stats)
+                if stats:  # a train.csv row is due
+                    elapsed = time.perf_counter() - row_start
+                    done_steps = self.global_step - row_step
+                    train_return = float(np.mean(recent_returns)) if recent_returns else float("nan")
+                    recent_returns.clear()
+                    stats.update({"episodes": self.episodes, "train/episode_reward": train_return,
+                                  "charts/SPS": done_steps / elapsed, "charts/update_seconds": update_seconds,
+                                  "charts/rollout_SPS": done_steps / max(elapsed - update_seconds, 1e-9)})  # fmt: skip
+                    stats.update({f"faults/{s}": float(faults[:, k].sum()) for k, s in enumerate(self.skill_names)})
+                    self.update += 1
+                    self._write("train", stats)
+                    all_skipped = stats.get("losses/skipped", 0) == stats.get("losses/minibatches", -1)
+                    skipped_in_a_row = skipped_in_a_row + 1 if all_skipped else 0
+                    row_start, row_step, update_seconds = time.perf_counter(), self.global_step, 0.0
+                    if bar is not None:
+                        bar.set_postfix(train_return=f"{train_return:.0f}", eval=f"{last_eval:.0f}",
+                                        SPS=f"{done_steps / elapsed:.0f}")  # fmt: skip
                 self._check_health(faults.sum(0), calls.sum(0), skipped_in_a_row)
-                if self.global_step >= next_eval or self.update == num_updates:
-                    last_eval = self.evaluate(last=self.update == num_updates)
+                finished = self.global_step >= cfg.steps
+                if self.global_step >= next_eval or finished:
+                    last_eval = self.evaluate(last=finished)
                     next_eval = (self.global_step // cfg.eval_every + 1) * cfg.eval_every
-                if self.global_step >= next_ckpt or self.update == num_updates:
+                if self.global_step >= next_ckpt or finished:
                     self.save()
                     next_ckpt = (self.global_step // cfg.checkpoint_every + 1) * cfg.checkpoint_every
                 if bar is not None:
-                    bar.update(env_steps_per_update)
-                    bar.set_postfix(train_return=f"{train_return:.0f}", eval=f"{last_eval:.0f}",
-                                    SPS=f"{env_steps_per_update / elapsed:.0f}")  # fmt: skip
+                    bar.update(self.global_step - bar.n)
         except KeyboardInterrupt:
-            # Save the state of the last finished update: the interrupted rollout is redone on resume, so the
-            # resumed run ends on the same step count as an uninterrupted one.
+            # Save the state at the last point with nothing pending: an interrupted PPO rollout is redone on resume,
+            # so the resumed run ends on the same step count as an uninterrupted one.
             self.global_step, self.episodes = committed
             log.warning("interrupted: saving a checkpoint at step %d", self.global_step)
             self.save()
@@ -615,6 +659,53 @@ class Trainer:
         wall = time.perf_counter() - self._start
         return {"final_eval": last_eval, "best_eval": float(self.best_eval), "steps": self.global_step,
                 "wall_seconds": wall}  # fmt: skip
+
+
+def _timed(work: Callable[[], Any]) -> tuple[Any, float]:
+    """``work()`` and the seconds it took."""
+    tic = time.perf_counter()
+    return work(), time.perf_counter() - tic
+
+
+def _no_update() -> None:
+    return None
+
+
+def _step_while(vec: gym.vector.VectorEnv, action: np.ndarray, work: Callable[[], Any]) -> tuple[tuple, tuple]:
+    """Step ``vec`` with ``action`` and run ``work()`` meanwhile when the envs step in worker processes. Returns the
+    step's results and ``(work(), its seconds)``."""
+    if isinstance(vec, gym.vector.AsyncVectorEnv):
+        vec.step_async(action)
+        done = _timed(work)
+        return vec.step_wait(), done
+    done = _timed(work)
+    return vec.step(action), done
+
+
+def _numpy_rng_state() -> dict[str, Any]:
+    """numpy's legacy global generator, whole (key, position, cached Gaussian), as tensors and plain numbers."""
+    name, key, pos, has_gauss, gauss = np.random.get_state()  # noqa: NPY002
+    return {"key": torch.from_numpy(key.astype(np.int64)), "pos": int(pos), "has_gauss": int(has_gauss),
+            "gauss": float(gauss)}  # fmt: skip
+
+
+def _set_numpy_rng_state(state: Any) -> None:
+    if isinstance(state, torch.Tensor):  # older checkpoints saved the key alone
+        state = {"key": state, "pos": 624, "has_gauss": 0, "gauss": 0.0}
+    key = state["key"].numpy().astype(np.uint32)
+    np.random.set_state(("MT19937", key, state["pos"], state["has_gauss"], state["gauss"]))  # noqa: NPY002
+
+
+def _python_rng_state() -> dict[str, Any]:
+    """Python's ``random`` state as plain containers (``weights_only`` loads them)."""
+    version, internal, gauss_next = random.getstate()
+    return {"version": int(version), "internal": list(internal), "gauss_next": gauss_next}
+
+
+def _set_python_rng_state(state: Any) -> None:
+    if not isinstance(state, dict):  # older checkpoints saved the internal state alone, without its version
+        state = {"version": 3, "internal": list(state), "gauss_next": None}
+    random.setstate((state["version"], tuple(int(x) for x in state["internal"]), state["gauss_next"]))
 
 
 def _interrupt(signum: int, frame: Any) -> None:

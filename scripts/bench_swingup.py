@@ -84,7 +84,7 @@ def sb3_run(seed: int, steps: int, eval_every: int, episodes: int, out: Path) ->
     from hrtc.benchmark.runs import RunSpec, sb3_train
 
     run_dir = ROOT / "runs" / "bench_swingup" / "sb3_ppo" / f"seed{seed}"  # its eval.csv (not committed)
-    curve = sb3_train(RunSpec(TASK, "sb3_ppo", seed, steps, eval_every, episodes, str(run_dir)))
+    curve, _ = sb3_train(RunSpec(TASK, "sb3_ppo", seed, steps, eval_every, episodes, str(run_dir)))
     evals = pd.DataFrame({"step": curve["step"], "episode_reward": curve["episode_reward"]})
     result = {
         "curve": {"step": curve["step"], "episode_reward": curve["episode_reward"]},

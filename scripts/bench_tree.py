@@ -69,8 +69,7 @@ def train(run_dir: Path, config: str, overrides: list[str], init_from: Path | No
     RunConfig fields after composition. Returns its curve and timings."""
     from dataclasses import replace
 
-    from hrtc.trainer import RunConfig, Trainer
-    from skills.learned import load_policy_weights
+    from hrtc.trainer import RunConfig, Trainer, load_policy_weights
 
     # No Rerun recording: its cost is not what this benchmark measures.
     cfg = RunConfig.from_mapping(compose(config, ["progress=false", "logger.mode=off", *overrides]))

@@ -22,7 +22,9 @@ from typing import Any
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))  # run from a clone without installing
 
+from hrtc import cli  # noqa: E402
 from hrtc.cli import fail  # noqa: E402
+from hrtc.errors import ConfigError  # noqa: E402
 
 DEFAULTS: dict[str, Any] = {
     "task": None,
@@ -35,6 +37,8 @@ DEFAULTS: dict[str, Any] = {
     "threshold": None,  # default: the task's solve_threshold
     "solve_episodes": None,  # episodes the threshold is averaged over (default: the task's solve_episodes, else 3)
     "collapse_window": 3,
+    "final_episodes": 10,  # episodes of a last evaluation of each run's final policy
+    "references": True,  # evaluate each skill alone, the untrained blend and the task's declared rules too
     "ray_address": None,
     "backend": "auto",
     "cpus": None,  # CPUs of the local Ray or process pool (default: all of this machine's)
@@ -48,6 +52,7 @@ DEFAULTS: dict[str, Any] = {
 
 def parse(argv: list[str]) -> dict[str, Any]:
     """``key=value`` arguments (YAML values: lists as ``[a,b]``, dotted keys for ``budgets.<algo>``)."""
+    import yaml
     from omegaconf import OmegaConf
     from omegaconf.errors import OmegaConfBaseException
 
@@ -56,7 +61,7 @@ def parse(argv: list[str]) -> dict[str, Any]:
         fail(f"arguments look like key=value, got {bad[0]!r}; keys: {', '.join(DEFAULTS)}")
     try:
         given = OmegaConf.to_container(OmegaConf.from_dotlist(argv))
-    except OmegaConfBaseException as error:
+    except (OmegaConfBaseException, yaml.YAMLError) as error:
         fail(f"malformed argument: {str(error).splitlines()[0]}")
     unknown = sorted(set(given) - set(DEFAULTS))  # type: ignore[arg-type]
     if unknown:
@@ -64,27 +69,82 @@ def parse(argv: list[str]) -> dict[str, Any]:
     return {**DEFAULTS, **given}  # type: ignore[dict-item]
 
 
+def check(args: dict[str, Any]) -> dict[str, Any]:
+    """Every argument's type and range (one ``error:`` line for the first problem), before anything is written."""
+    from hrtc.benchmark.dispatch import BACKENDS, resolve_backend
+    from hrtc.benchmark.runs import ALGORITHMS
+
+    def algos(name: str, value: Any) -> list[str]:
+        value = value if isinstance(value, list) else [value]
+        for algo in value:
+            if algo not in ALGORITHMS:
+                raise ConfigError(f"unknown algorithm {algo!r}; valid: {', '.join(ALGORITHMS)}")
+        if not value or len(set(value)) != len(value):
+            raise ConfigError(f"{name} must list distinct algorithms, got {value}")
+        return list(value)
+
+    def seeds(name: str, value: Any) -> list[int]:
+        if not isinstance(value, list):
+            return list(range(1, cli.integer(1, 1000)(f"{name} (a count)", value) + 1))
+        value = [cli.integer(0, 999)(f"every entry of {name}", seed) for seed in value]
+        if not value or len(set(value)) != len(value):
+            raise ConfigError(f"{name} must be a count or a list of distinct seeds, got {value}")
+        return value
+
+    def budgets(name: str, value: Any) -> dict[str, int]:
+        value = cli.mapping(name, value)
+        for algo, steps in value.items():
+            if algo not in ALGORITHMS:
+                raise ConfigError(f"unknown algorithm {algo!r} in {name}; valid: {', '.join(ALGORITHMS)}")
+            cli.integer(1)(f"{name}.{algo}", steps)
+        return value
+
+    def text(name: str, value: Any) -> str:
+        if not isinstance(value, str):
+            raise ConfigError(f"{name} must be text, got {value!r}")
+        return value
+
+    checks = {
+        "task": cli.required(cli.one_of(*cli.group_choices("task")), "name, e.g. cartpole_swingup"),
+        "algos": algos,
+        "seeds": seeds,
+        "budget": cli.integer(1),
+        "budgets": budgets,
+        "eval_every": cli.optional(cli.integer(1)),
+        "eval_episodes": cli.optional(cli.integer(1)),
+        "threshold": cli.optional(cli.number()),
+        "solve_episodes": cli.optional(cli.integer(1)),
+        "collapse_window": cli.integer(1),
+        "final_episodes": cli.integer(0),
+        "references": cli.boolean,
+        "ray_address": cli.optional(text),
+        "backend": cli.one_of(*BACKENDS),
+        "cpus": cli.optional(cli.integer(1)),
+        "cpus_per_run": cli.integer(1),
+        "out": cli.optional(cli.output_path(directory=True)),
+        "runs_dir": cli.optional(cli.output_path(directory=True)),
+        "report_only": cli.boolean,
+        "progress": cli.boolean,
+    }
+    args = cli.validate(args, checks)
+    try:
+        resolve_backend(args["backend"], args["ray_address"])
+    except ConfigError as error:
+        fail(str(error))
+    return args
+
+
 def main(argv: list[str]) -> int:
     from hrtc.benchmark.dispatch import execute, is_same_run, load_results, save_results
     from hrtc.benchmark.report import SolveRule, machine_info, write_report
-    from hrtc.benchmark.runs import ALGORITHMS, RunSpec
+    from hrtc.benchmark.runs import RunSpec
     from hrtc.cli import task_config
     from hrtc.errors import HRTCError
 
-    args = parse(argv)
-    if not args["task"]:
-        fail("task=<name> is required")
-    try:
-        task = task_config(str(args["task"]))
-    except HRTCError as error:
-        fail(str(error))
+    args = check(parse(argv))
+    task = task_config(str(args["task"]))
     name = str(task["name"])
-    algos = list(args["algos"]) if isinstance(args["algos"], list) else [args["algos"]]
-    for algo in algos:
-        if algo not in ALGORITHMS:
-            fail(f"unknown algorithm {algo!r}; valid: {', '.join(ALGORITHMS)}")
-    seeds = list(range(1, int(args["seeds"]) + 1)) if isinstance(args["seeds"], int) else list(args["seeds"])
-    budget = int(args["budget"])
+    algos, seeds, budget = args["algos"], args["seeds"], args["budget"]
     budgets = {a: int(args["budgets"].get(a, budget)) for a in algos}
     eval_every = int(args["eval_every"] or max(1, budget // 10))
     threshold = args["threshold"] if args["threshold"] is not None else task.get("solve_threshold")
@@ -108,21 +168,30 @@ def main(argv: list[str]) -> int:
             cpus,
             float(threshold),
             solve_episodes,
+            int(args["final_episodes"]),
         )  # fmt: skip
         for seed in seeds
         for algo in algos  # seed-major: a benchmark stopped early has every algorithm on its first seeds
     ]
     meta = {"task": name, "budget": budget, "budgets": budgets, "eval_every": eval_every, "eval_episodes": episodes,
-            "seeds": seeds, "algos": algos, "rule": vars(rule)}  # fmt: skip
-    out.mkdir(parents=True, exist_ok=True)
+            "seeds": seeds, "algos": algos, "rule": vars(rule),
+            "final_episodes": int(args["final_episodes"])}  # fmt: skip
     results_path = out / "results.json"
+    try:
+        stored = load_results(results_path)  # a results.json that cannot be read stops here, before any write
+    except (OSError, ValueError, KeyError, TypeError) as error:
+        fail(f"cannot read {results_path} ({type(error).__name__}: {error}); move it away to start afresh")
+    if args["report_only"]:
+        runs = {s.key: stored[s.key] for s in specs if s.key in stored and is_same_run(stored[s.key], s)}
+        if not runs:
+            fail(f"no finished runs for these settings in {results_path}")
+    out.mkdir(parents=True, exist_ok=True)
+    if args["references"]:
+        meta["references"] = references(task, results_path, int(args["final_episodes"]) or 10)
     errors: dict[str, str] = {}
     with (out / "command.txt").open("a") as handle:  # every invocation: a resumed benchmark's runs come from several
         handle.write("python scripts/benchmark.py " + " ".join(argv) + "\n")
-    if args["report_only"]:
-        stored = load_results(results_path)
-        runs = {s.key: stored[s.key] for s in specs if s.key in stored and is_same_run(stored[s.key], s)}
-    else:
+    if not args["report_only"]:
         (out / "machine.txt").write_text(machine_info())  # first: a benchmark stopped early still says where it ran
         try:
             runs, errors = execute(specs, results_path, meta, args["backend"], args["ray_address"], args["cpus"],
@@ -142,6 +211,34 @@ def main(argv: list[str]) -> int:
     for key, error in errors.items():
         print(f"failed {key}: {error}", file=sys.stderr)
     return 1 if errors else 0
+
+
+def references(task: dict, results_path: Path, episodes: int) -> dict[str, list[float]]:
+    """Returns of every reference rule over the task's skills (:mod:`hrtc.references`) on ``episodes`` evaluation
+    seeds of seed 1, reused from ``results_path`` when it holds them for as many episodes."""
+    import json
+
+    from hrtc.references import evaluate_rules, reference_rules
+    from hrtc.trainer import eval_seeds, make_env
+
+    stored = json.loads(results_path.read_text()).get("references", {}) if results_path.exists() else {}
+    if stored and all(len(v) == episodes for v in stored.values()):
+        return stored
+    algo_cfg = compose_task(task["name"])
+    env = make_env(task["name"], "hrtc", task["skills"], env_kwargs=task.get("env_kwargs"),
+                   decision_every=int(algo_cfg["algo"]["decision_every"]))  # fmt: skip
+    rules = reference_rules(env.skill_names, task.get("references"))
+    print(f"references: {len(rules)} rules x {episodes} episodes", file=sys.stderr)
+    return {k: v.tolist() for k, v in evaluate_rules(env, rules, eval_seeds(1, episodes)).items()}
+
+
+def compose_task(task: str) -> dict:
+    """The composed config of ``task=<task>`` (its decision rate and settings) as plain containers."""
+    from omegaconf import OmegaConf
+
+    from hrtc.cli import compose
+
+    return OmegaConf.to_container(compose([f"task={task}"]), resolve=True)  # type: ignore[return-value]
 
 
 if __name__ == "__main__":

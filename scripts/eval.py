@@ -1,39 +1,108 @@
 """Evaluate a saved policy (HRTC or PPO) with the distribution's mean, and record the episodes.
 
     python scripts/eval.py checkpoint=<path> [episodes=10] [seed=1] [out=DIR] [logger=save|off|spawn]
-        [frames=true] [frame_every=5] [frame_episodes=1]
+        [frames=true] [frame_every=5] [frame_episodes=1] [task=<task>] [env_kwargs.<key>=value ...]
 
 Episode seeds are the trainer's evaluation seeds for ``seed`` (1_000_000 + 1000 seed + k): with the training run's
 seed the first episodes are the ones its evaluations used. Writes DIR/recording.rrd (default: <run dir>/eval/<name>)
 and prints the returns, each skill's mean weight and dominant share, and the skills' solver statistics.
+
+Changed physics: ``task=`` evaluates on another registered task with the same observation and action sizes (e.g.
+``cartpole_swingup_heavy``; the skills stay as trained); ``env_kwargs.<key>=value`` (or ``env_kwargs={key: value}``)
+sets the task's keyword arguments over the checkpoint's own (another task: over its config's), e.g.
+``task=cartpole_swingup_heavy env_kwargs.pole_mass_scale=1.5`` or ``env_kwargs.pole_length_scale=1.25``.
 """
 
 from __future__ import annotations
 
 import sys
 from pathlib import Path
+from typing import Any, NamedTuple
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a clone without installing
 
-from hrtc.cli import fail, parse_options  # noqa: E402
+from hrtc import cli  # noqa: E402
 from hrtc.errors import HRTCError  # noqa: E402
 
 DEFAULTS = {"checkpoint": None, "episodes": 10, "seed": 1, "out": None, "logger": "save", "frames": True,
-            "frame_every": 5, "frame_episodes": 1}  # fmt: skip
+            "frame_every": 5, "frame_episodes": 1, "task": None, "env_kwargs": {}}  # fmt: skip
+CHECKS = {
+    "checkpoint": cli.required(cli.input_file, "path, e.g. runs/.../checkpoints/best.pt"),
+    "episodes": cli.integer(1, 100_000),
+    "seed": cli.integer(0, 4_000_000),  # evaluation seeds 1e6 + 1000 seed + k stay below 2**32
+    "out": cli.optional(cli.output_path(directory=True)),
+    "logger": cli.one_of("save", "off", "spawn"),
+    "frame_every": cli.integer(1),
+    "frame_episodes": cli.integer(0),
+    "task": cli.optional(cli.registered_task),
+    "env_kwargs": cli.mapping,
+}
 
 
 def main(argv: list[str]) -> None:
-    opts = parse_options(argv, DEFAULTS, __doc__ or "")
-    if not opts["checkpoint"]:
-        fail("checkpoint=<path> is required (e.g. runs/.../checkpoints/best.pt)")
+    opts = cli.parse_options(argv, DEFAULTS, __doc__ or "", CHECKS)
     try:
-        summary = run(opts)
+        setup = prepare(opts)
     except HRTCError as error:
-        fail(str(error))
+        cli.fail(str(error))
+    try:
+        summary = run(opts, setup)
+    except HRTCError as error:
+        cli.fail(str(error), status=1)
     print(summary)
 
 
-def run(opts: dict) -> str:
+class Setup(NamedTuple):
+    """What :func:`prepare` checked and built: the policy, the env it acts in (``task`` with ``env_kwargs``) and the
+    output directory."""
+
+    policy: Any
+    normalizer: Any
+    meta: dict
+    env: Any
+    task: str
+    env_kwargs: dict
+    out: Path
+
+
+def prepare(opts: dict) -> Setup:
+    """Everything that can refuse the input, before anything is written: the checkpoint, the task it is evaluated on
+    (built, reset, and its sizes checked against the policy's), the output directory."""
+    from hrtc.cli import build_env, check_checkpoint_fits, output_path, task_config
+    from hrtc.trainer import eval_seeds, load_policy
+
+    path = Path(opts["checkpoint"])
+    policy, normalizer, meta = load_policy(path)
+    if "skills_cfg" not in meta:
+        raise HRTCError(f"{path} predates checkpoints that describe their task's skills; re-save it with this version")
+    task = opts["task"] or str(meta["task"])
+    if task == meta["task"]:
+        base = dict(meta["env_kwargs"] or {})
+    else:
+        base = dict(task_config(task).get("env_kwargs") or {}) if task in cli.group_choices("task") else {}
+    env_kwargs = {**base, **opts["env_kwargs"]}
+    try:
+        env = build_env(task, meta["algo"], meta["skills_cfg"], meta["action_filter"], env_kwargs,
+                        int(meta["decision_every"]), eval_seeds(opts["seed"], 1)[0])  # fmt: skip
+    except HRTCError as error:
+        raise HRTCError(f"cannot evaluate {path} on task {task!r}: {error}") from None
+    try:
+        check_checkpoint_fits(meta, env, path)
+        if opts["out"]:
+            out = opts["out"]
+        else:
+            run_dir = path.parent.parent if path.parent.name == "checkpoints" else path.parent
+            changed = [task] if task != meta["task"] else []
+            changed += [f"{k}{v}" for k, v in sorted(opts["env_kwargs"].items())]
+            out = output_path(directory=True)("out", run_dir / "eval" / "-".join([path.stem, f"seed{opts['seed']}",
+                                                                                    *changed]))  # fmt: skip
+    except BaseException:
+        env.close()
+        raise
+    return Setup(policy, normalizer, meta, env, task, env_kwargs, out)
+
+
+def run(opts: dict, setup: Setup) -> str:
     import numpy as np
 
     from hrtc.logging.trace import (
@@ -44,17 +113,11 @@ def run(opts: dict) -> str:
         skill_statistics,
         weight_summary,
     )
-    from hrtc.trainer import eval_seeds, evaluate, frame_source, load_policy, make_env
+    from hrtc.trainer import eval_seeds, evaluate, frame_source
 
-    path = Path(str(opts["checkpoint"]))
-    policy, normalizer, meta = load_policy(path)
-    if "skills_cfg" not in meta:
-        raise HRTCError(f"{path} predates checkpoints that describe their task's skills; re-save it with this version")
-    env = make_env(meta["task"], meta["algo"], meta["skills_cfg"], meta["action_filter"], meta["env_kwargs"],
-                   int(meta["decision_every"]))  # fmt: skip
+    policy, normalizer, meta, env, task, env_kwargs, out = setup
+    path = Path(opts["checkpoint"])
     episodes, seed = int(opts["episodes"]), int(opts["seed"])
-    run_dir = path.parent.parent if path.parent.name == "checkpoints" else path.parent
-    out = Path(opts["out"]) if opts["out"] else run_dir / "eval" / f"{path.stem}-seed{seed}"
     names = tuple(meta["skills"]) or tuple(f"a{i}" for i in range(int(meta["out_dim"])))
     recorder, render = None, None
     if opts["logger"] != "off":
@@ -62,12 +125,12 @@ def run(opts: dict) -> str:
         from hrtc.logging.rerun_sink import RerunSink
         from hrtc.tree import describe
 
-        task = task_config(meta["task"]) if meta["task"] in group_choices("task") else {}
+        task_cfg = task_config(task) if task in group_choices("task") else {}  # the task evaluated on
         cfg = RecordingConfig(mode=str(opts["logger"]), frames=bool(opts["frames"]),
                               frame_every=int(opts["frame_every"]), frame_episodes=int(opts["frame_episodes"]),
-                              frame_evals_every=1, action_names=tuple(task.get("action_names") or ()),
-                              key_state=task.get("key_state"))  # fmt: skip
-        tree, paths = describe(env, f"{meta['task']}: {meta['algo']}-{meta['dist']} from {path}")
+                              frame_evals_every=1, action_names=tuple(task_cfg.get("action_names") or ()),
+                              key_state=task_cfg.get("key_state"))  # fmt: skip
+        tree, paths = describe(env, f"{task}: {meta['algo']}-{meta['dist']} from {path}")
         task_action_dim = int(getattr(env, "action_dim", env.action_space.shape[0]))
         recorder = RerunSink(out, cfg, names, task_action_dim, tree, tree_paths=paths,
                              state_source=env.unwrapped.skill_state, eval_episodes=episodes)  # fmt: skip
@@ -80,7 +143,8 @@ def run(opts: dict) -> str:
         env.close()
         if recorder is not None:
             recorder.close()
-    lines = [f"{path}: {meta['algo']}-{meta['dist']} on {meta['task']}",
+    physics = f" with env_kwargs {env_kwargs}" if env_kwargs else ""
+    lines = [f"{path}: {meta['algo']}-{meta['dist']} (trained on {meta['task']}) on {task}{physics}",
              format_returns(returns),
              "per episode: " + " ".join(f"{r:.1f}" for r in returns)]  # fmt: skip
     if meta["algo"] == "hrtc":

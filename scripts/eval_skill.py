@@ -16,37 +16,34 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a clone without installing
 
-from hrtc.cli import fail, parse_options  # noqa: E402
+from hrtc import cli  # noqa: E402
 from hrtc.errors import HRTCError  # noqa: E402
 
 DEFAULTS = {"task": None, "skill": None, "episodes": 3, "seed": 1, "weights": None, "out": None, "logger": "save",
             "frames": True, "frame_every": 5}  # fmt: skip
+CHECKS = {
+    "task": cli.required(cli.one_of(*cli.group_choices("task")), "name, e.g. cartpole_swingup"),
+    "episodes": cli.integer(1, 100_000),
+    "seed": cli.integer(0, 4_000_000),  # evaluation seeds 1e6 + 1000 seed + k stay below 2**32
+    "out": cli.optional(cli.output_path(directory=True)),
+    "logger": cli.one_of("save", "off", "spawn"),
+    "frame_every": cli.integer(1),
+}
 
 
 def main(argv: list[str]) -> None:
-    opts = parse_options(argv, DEFAULTS, __doc__ or "")
-    if not opts["task"]:
-        fail("task=<name> is required")
+    opts = cli.parse_options(argv, DEFAULTS, __doc__ or "", CHECKS)
     try:
         print(run(opts))
     except HRTCError as error:
-        fail(str(error))
+        cli.fail(str(error))
 
 
 def run(opts: dict) -> str:
     import numpy as np
 
-    from hrtc.cli import task_config
+    from hrtc.cli import build_env, numbers, output_path, task_config
     from hrtc.errors import ConfigError, UnknownNameError
-    from hrtc.logging.trace import (
-        RecordingConfig,
-        TraceCollector,
-        format_returns,
-        format_skill_statistics,
-        skill_statistics,
-    )
-    from hrtc.trainer import Decision, eval_seeds, frame_source, make_env, run_episodes
-    from hrtc.tree import describe
 
     task = task_config(str(opts["task"]))
     skills = task.get("skills") or {}
@@ -57,9 +54,9 @@ def run(opts: dict) -> str:
         return "\n".join(f"{n:<12} {skills[n]['skill'].get('_target_')}  every={skills[n].get('every', 1)}"
                          for n in names)  # fmt: skip
     if opts["weights"] is not None:
-        weights = np.asarray(opts["weights"], dtype=np.float64).reshape(-1)
-        if weights.shape != (len(names),) or not np.all(np.isfinite(weights)):
-            raise ConfigError(f"weights must be {len(names)} finite numbers, one per skill {list(names)}")
+        if opts["skill"] is not None:
+            raise ConfigError("give skill=<name> or weights=[...], not both")
+        weights = numbers(len(names), 0.0, 1.0)(f"weights (one per skill {list(names)})", opts["weights"])
         label = "blend-" + "-".join(f"{w:g}" for w in weights)
     elif opts["skill"] is None:
         raise ConfigError(f"skill=<name> or weights=[...] is required; the skills are {', '.join(names)}")
@@ -68,10 +65,20 @@ def run(opts: dict) -> str:
         label = str(opts["skill"])
     else:
         raise UnknownNameError("skill", str(opts["skill"]), (*names, "list"))
-
-    env = make_env(task["name"], "hrtc", skills, "sum", task.get("env_kwargs"), 1)
     episodes, seed = int(opts["episodes"]), int(opts["seed"])
-    out = Path(opts["out"]) if opts["out"] else Path("runs") / "skills" / task["name"] / label
+    out = opts["out"] or output_path(directory=True)("out", Path("runs") / "skills" / task["name"] / label)
+
+    from hrtc.logging.trace import (  # the heavy imports (torch) after the checks: bad input is answered at once
+        RecordingConfig,
+        TraceCollector,
+        format_returns,
+        format_skill_statistics,
+        skill_statistics,
+    )
+    from hrtc.trainer import Decision, eval_seeds, frame_source, run_episodes
+    from hrtc.tree import describe
+
+    env = build_env(task["name"], "hrtc", skills, "sum", task.get("env_kwargs"), 1, eval_seeds(seed, 1)[0])
     recorder, render = None, None
     if opts["logger"] != "off":
         from hrtc.logging.rerun_sink import RerunSink

@@ -15,28 +15,39 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a clone without installing
 
-from hrtc.cli import fail  # noqa: E402
+from hrtc import cli  # noqa: E402
 from hrtc.errors import HRTCError  # noqa: E402
+
+PLOT_SUFFIXES = (".png", ".pdf", ".svg", ".jpg", ".jpeg")
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = cli.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("path", help="a run directory (all its recording segments) or one .rrd file")
     parser.add_argument("--out", help="where to write the plot (default: activations.png beside the recording)")
     parser.add_argument("--panels", type=int, default=6, help="episodes to plot (first, best, last, spaced)")
-    args = parser.parse_args(argv)
+    parsed = parser.parse_args(argv)
+    args = cli.validate({"path": parsed.path, "--out": parsed.out, "--panels": parsed.panels},
+                        {"path": _existing, "--out": cli.optional(cli.output_path(False, PLOT_SUFFIXES)),
+                         "--panels": cli.integer(1, 100)})  # fmt: skip
     from hrtc import review
 
     try:
-        data = review.load(args.path)
+        data = review.load(args["path"])
+        out = args["--out"] or cli.output_path(False, PLOT_SUFFIXES)("--out", data.paths[0].parent / "activations.png")
     except HRTCError as error:
-        fail(str(error))
+        cli.fail(str(error))
     summary = review.summarize(data)
     print(f"{len(summary)} evaluation episodes in {', '.join(str(p) for p in data.paths)}")
     print(review.format_summary(summary, data.skill_names))
-    out = Path(args.out) if args.out else data.paths[0].parent / "activations.png"
-    review.plot_activations(data, out, args.panels)
+    review.plot_activations(data, out, args["--panels"])
     print(f"wrote {out}")
+
+
+def _existing(name: str, value: str) -> Path:
+    """A run directory or a readable recording file."""
+    path = Path(value)
+    return path if path.is_dir() else cli.input_file(name, path)
 
 
 if __name__ == "__main__":

@@ -3,7 +3,8 @@
     python scripts/train.py task=cartpole_swingup [algo=hrtc|ppo] [dist=beta|normal] [seed=N] [steps=N]
         [hydra.run.dir=DIR] [resume=true]
 
-Writes into the run directory: train.csv, eval.csv, checkpoints/{last,best}.pt and config.yaml (resolved).
+Writes into the run directory: train.csv, eval.csv, checkpoints/{last,best}.pt and config.yaml (resolved). One
+process writes a run directory at a time (its .lock names the holder); bad input is one error line, nothing written.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from omegaconf import DictConfig
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a clone without installing
 
-from hrtc.cli import check_overrides, fail, start_run  # noqa: E402
+from hrtc.cli import fail, prepare_run, start_run  # noqa: E402
 from hrtc.errors import HRTCError  # noqa: E402
 
 log = logging.getLogger("hrtc.train")
@@ -46,5 +47,5 @@ def main(cfg: DictConfig) -> None:
 
 
 if __name__ == "__main__":
-    check_overrides(sys.argv[1:])
+    sys.argv[1:] = prepare_run(sys.argv[1:])  # every check and the run directory's lock, before Hydra writes there
     main()

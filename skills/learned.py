@@ -24,25 +24,12 @@ from typing import Any
 import numpy as np
 import torch
 
-from hrtc.checkpoint import load_checkpoint
+from hrtc.checkpoint import META_KEYS, load_checkpoint, resolve_checkpoint
 from hrtc.composition import ActionFilter, KeysFilter, SkillLibrary, build_library
 from hrtc.errors import CheckpointError, ConfigError, ShapeError
 from hrtc.normalize import ObsNormalizer
 from hrtc.policy import ActorCritic
 from hrtc.skill import SkillOutput
-
-REPO_ROOT = Path(__file__).resolve().parents[1]
-META_KEYS = ("task", "algo", "dist", "obs_dim", "out_dim", "hidden")
-
-
-def resolve_checkpoint(path: str | Path) -> Path:
-    """``path`` as given if it exists, else relative to the repository root (so task configs may name committed
-    checkpoints by a repository path whatever the working directory). Raises :class:`CheckpointError` if neither."""
-    path = Path(path).expanduser()
-    if path.is_file() or path.is_absolute():
-        return path
-    candidate = REPO_ROOT / path
-    return candidate if candidate.is_file() else path
 
 
 def load_policy(path: str | Path) -> tuple[ActorCritic, ObsNormalizer | None, dict[str, Any]]:
@@ -195,28 +182,3 @@ def _filter_keys(state_filter: Any) -> tuple[str, ...]:
     if keys is None:
         raise ConfigError(f"a learned HRTC skill needs key-based state filters for its children, got {state_filter}")
     return tuple(keys)
-
-
-def load_policy_weights(trainer: Any, path: str | Path) -> dict[str, Any]:
-    """Start ``trainer`` (a :class:`hrtc.trainer.Trainer`, before ``train()``; it needs ``cfg``, ``skill_names``,
-    ``policy``, ``normalizer`` and ``reward_scaler``) from a checkpoint's policy, for fine-tuning on a changed task.
-
-    Copies the actor-critic weights, the observation normaliser and the reward scaler's statistics (the critic's
-    scale); the optimiser, counters and RNGs stay fresh. The checkpoint must have the same algorithm, distribution,
-    network sizes and skill names, else :class:`CheckpointError`. Returns the checkpoint's meta."""
-    path = resolve_checkpoint(path)
-    state = load_checkpoint(path)
-    meta = state["meta"]
-    cfg = trainer.cfg
-    mine = {"algo": cfg.algo, "dist": cfg.dist, "skills": list(trainer.skill_names), "hidden": list(cfg.hidden),
-            "obs_dim": trainer.policy.obs_dim, "out_dim": trainer.policy.out_dim}  # fmt: skip
-    for key, value in mine.items():
-        theirs = meta.get(key)
-        if (list(theirs) if isinstance(theirs, list | tuple) else theirs) != value:
-            raise CheckpointError(f"cannot fine-tune from {path}: its {key} is {theirs!r}, this run's is {value!r}")
-    trainer.policy.load_state_dict(state["policy"])
-    if trainer.normalizer is not None and state["obs_rms"]:
-        trainer.normalizer.rms.load_state_dict(state["obs_rms"])
-    if trainer.reward_scaler is not None and state.get("reward_rms"):
-        trainer.reward_scaler.rms.load_state_dict(state["reward_rms"])
-    return dict(meta)

@@ -21,7 +21,8 @@ def _run(args, tmp_path=None, timeout=300):
 @pytest.mark.parametrize("algo,num_steps", [("hrtc", 50), ("ppo", 250)])
 def test_train_two_iterations_writes_the_run_directory(tmp_path, algo, num_steps):
     run_dir = tmp_path / "run"
-    args = [f"algo={algo}", "task=cartpole_swingup", "steps=1000", f"ppo.num_steps={num_steps}", "eval_every=500"]
+    args = [f"algo={algo}", "learner=ppo", "task=cartpole_swingup", "steps=1000", f"ppo.num_steps={num_steps}",
+            "eval_every=500"]  # fmt: skip
     result = _run([*args, "eval_episodes=1", "progress=false", f"hydra.run.dir={run_dir}"], tmp_path)
     assert result.returncode == 0, result.stderr[-2000:]
     assert "done: 1000 steps" in result.stdout
@@ -37,6 +38,29 @@ def test_train_two_iterations_writes_the_run_directory(tmp_path, algo, num_steps
     if algo == "hrtc":
         assert state["meta"]["skills"] == ["swingup", "balance", "tracker", "hold"]
     assert "name: cartpole_swingup" in (run_dir / "config.yaml").read_text()
+
+
+def test_train_with_the_sac_learner_saves_its_replay_buffer_and_resumes(tmp_path):
+    """learner=sac through the real entry point: losses in train.csv, the replay buffer in last.pt (not in best.pt),
+    and a resume that continues the buffer and the step count."""
+    run_dir = tmp_path / "run"
+    args = ["task=cartpole_swingup", "learner=sac", "sac.learning_starts=100", "sac.log_every=100", "sac.batch_size=32",
+            "eval_every=500", "eval_episodes=1", "progress=false", f"hydra.run.dir={run_dir}"]  # fmt: skip
+    result = _run([*args, "steps=1000"], tmp_path)
+    assert result.returncode == 0, result.stderr[-2000:]
+    train = pd.read_csv(run_dir / "train.csv")
+    assert train["losses/gradient_steps"].sum() > 0 and train["losses/q_loss"].dropna().gt(0).all()
+    state = load_checkpoint(run_dir / "checkpoints" / "last.pt")
+    assert state["meta"]["learner"] == "sac" and state["optimizer"]["buffer"]["rewards"].shape[0] == 200
+    # 200 decisions; from the vector step that fills the buffer to 100 on (51 steps of 2), one gradient step per
+    # decision: 100 taken, the last step's 2 still owed (updates run while the envs step, on what was observed).
+    assert state["optimizer"]["counters"]["gradient_steps"] == 100 and state["optimizer"]["counters"]["credit"] == 2
+    assert load_checkpoint(run_dir / "checkpoints" / "best.pt")["optimizer"] == {}
+    result = _run([*args, "steps=1500", "resume=true"], tmp_path)
+    assert result.returncode == 0, result.stderr[-2000:]
+    state = load_checkpoint(run_dir / "checkpoints" / "last.pt")
+    assert state["global_step"] == 1500 and state["optimizer"]["buffer"]["rewards"].shape[0] == 300
+    assert state["optimizer"]["counters"]["gradient_steps"] == 200
 
 
 @pytest.mark.parametrize(

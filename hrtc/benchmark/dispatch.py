@@ -67,6 +67,19 @@ def is_same_run(result: dict[str, Any], spec: RunSpec) -> bool:
     return same and (not spec.confirms or all(result.get(k) == getattr(spec, k) for k in SAME_RUN))
 
 
+def resolve_backend(backend: str, ray_address: str | None = None) -> str:
+    """``ray`` or ``process`` for ``backend`` (``auto``: Ray when installed); :class:`ConfigError` when it cannot be."""
+    if backend not in BACKENDS:
+        raise ConfigError(f"unknown backend {backend!r}; valid: {', '.join(BACKENDS)}")
+    if backend == "auto":
+        backend = "ray" if ray_available() else "process"
+    if backend == "ray" and not ray_available():
+        raise ConfigError('backend=ray needs Ray: pip install "hrtc[ray]"')
+    if backend == "process" and ray_address:
+        raise ConfigError("ray_address needs backend=ray (or auto with Ray installed)")
+    return backend
+
+
 def execute(
     specs: Sequence[RunSpec],
     results_path: Path,
@@ -83,14 +96,7 @@ def execute(
     ``num_cpus // cpus`` processes) or ``auto`` (Ray when installed). A failed run is reported and left out; the
     others go on.
     """
-    if backend not in BACKENDS:
-        raise ConfigError(f"unknown backend {backend!r}; valid: {', '.join(BACKENDS)}")
-    if backend == "auto":
-        backend = "ray" if ray_available() else "process"
-    if backend == "ray" and not ray_available():
-        raise ConfigError('backend=ray needs Ray: pip install "hrtc[ray]"')
-    if backend == "process" and ray_address:
-        raise ConfigError("ray_address needs backend=ray (or auto with Ray installed)")
+    backend = resolve_backend(backend, ray_address)
     results_path.parent.mkdir(parents=True, exist_ok=True)
     stored = load_results(results_path)
     done = {s.key: stored[s.key] for s in specs if s.key in stored and is_same_run(stored[s.key], s)}

@@ -23,14 +23,16 @@ from typing import Any
 import numpy as np
 
 LABELS = {
-    "hrtc_beta": "HRTC Beta",
-    "hrtc_normal": "HRTC Normal",
+    "hrtc_beta": "HRTC Beta (PPO)",
+    "hrtc_beta_sac": "HRTC Beta (SAC learner)",
+    "hrtc_normal": "HRTC Normal (PPO)",
     "ppo_beta": "PPO Beta",
     "ppo_normal": "PPO Normal",
     "sb3_ppo": "SB3 PPO",
     "sb3_sac": "SB3 SAC",
     "sb3_td3": "SB3 TD3",
     "sb3_a2c": "SB3 A2C",
+    "sb3_sac_composed": "SB3 SAC on ComposedEnv",
 }
 
 
@@ -334,6 +336,7 @@ def write_report(results: Mapping[str, Any], out: Path, rule: SolveRule) -> str:
     outcomes = analyse(runs, rule)
     budget = int(results["budget"])
     task = results["task"]
+    final_n = int(results.get("final_episodes") or 0)
     expected = len(results["seeds"]) * len(results.get("algos", outcomes))
     present = sum(len(o) for o in outcomes.values())
     lines = [
@@ -366,27 +369,57 @@ def write_report(results: Mapping[str, Any], out: Path, rule: SolveRule) -> str:
         "",
         "## Per algorithm",
         "",
-        "| algorithm | final evaluation, median [min, max] | best evaluation, median | wall time per run, median |"
+        f"| algorithm | last evaluation, median [min, max] | final policy over {final_n} episodes, median [min, max]"
+        " | best evaluation, median | lowest evaluation after first solving, per seed | wall time per run, median |"
         " wall time to solution, median (solved runs) | settings |",
-        "|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for algo, per_seed in outcomes.items():
         finals = [o.final for o in per_seed.values()]
-        walls = [r["wall_seconds"] for r in runs.values() if r["algo"] == algo]
+        mine = {int(r["seed"]): r for r in runs.values() if r["algo"] == algo}
+        walls = [r["wall_seconds"] for r in mine.values()]
         solve_walls = [o.solved_wall for o in per_seed.values() if o.solved_wall is not None]
-        settings = next(r["settings"] for r in runs.values() if r["algo"] == algo)
+        settings = next(r["settings"] for r in mine.values())
+        policy_finals = [float(np.mean(r["final_returns"])) for r in mine.values() if r.get("final_returns")]
+        lows = [_lowest_after_solve(mine[seed]["curve"], rule.threshold) for seed in sorted(mine)]
         lines.append(
             f"| {LABELS.get(algo, algo)} | {np.median(finals):.0f} [{min(finals):.0f}, {max(finals):.0f}] "
-            f"| {np.median([o.best for o in per_seed.values()]):.0f} | {np.median(walls):.0f} s "
+            f"| {_median_range(policy_finals)} "
+            f"| {np.median([o.best for o in per_seed.values()]):.0f} "
+            f"| {', '.join('—' if v is None else f'{v:.0f}' for v in lows)} | {np.median(walls):.0f} s "
             f"| {f'{np.median(solve_walls):.0f} s' if solve_walls else '—'} | {settings} |"
         )
     lines += ["", "Wall times are from a shared, loaded machine (machine.txt): compare them only roughly."]
+    lines += reference_lines(results.get("references"))
     text = "\n".join(lines) + "\n"
     (out / "table.md").write_text(text)
     (out / "summary.json").write_text(json.dumps(summary(outcomes, rule), indent=1))
     plot_curves(runs, rule, out / "curves.png", title=f"{task}: median and interquartile band over seeds",
                 episodes=int(results.get("eval_episodes", rule.episodes)))  # fmt: skip
     return text
+
+
+def _median_range(values: list[float]) -> str:
+    return f"{np.median(values):.0f} [{min(values):.0f}, {max(values):.0f}]" if values else "—"
+
+
+def _lowest_after_solve(curve: Mapping[str, Any], threshold: float) -> float | None:
+    """The lowest evaluation after the first one reaching ``threshold`` (None if none reached it): a collapse shows."""
+    values = list(curve["episode_reward"])
+    first = next((i for i, v in enumerate(values) if v >= threshold), None)
+    return None if first is None else float(min(values[first:]))
+
+
+def reference_lines(references: Mapping[str, list[float]] | None) -> list[str]:
+    """The references table: each rule over the task's skills (each skill alone, the untrained blend, declared hand
+    rules), mean and std of its returns on the evaluation seeds."""
+    if not references:
+        return []
+    n = len(next(iter(references.values())))
+    lines = ["", f"## References over the same skills ({n} episodes each, evaluation seeds of seed 1)", "",
+             "| rule | mean return | std |", "|---|---|---|"]  # fmt: skip
+    lines += [f"| {name} | {np.mean(v):.1f} | {np.std(v):.1f} |" for name, v in references.items()]
+    return lines
 
 
 def summary(outcomes: Mapping[str, Mapping[int, Outcome]], rule: SolveRule) -> dict[str, Any]:

@@ -25,28 +25,35 @@ import numpy as np
 
 from hrtc.errors import UnknownNameError
 
-# name -> (family, setting): "trainer" runs hrtc.trainer.Trainer with (algo, dist); "sb3" a stable-baselines3 class.
-ALGORITHMS: dict[str, tuple[str, tuple[str, str]]] = {
-    "hrtc_beta": ("trainer", ("hrtc", "beta")),
-    "hrtc_normal": ("trainer", ("hrtc", "normal")),
-    "ppo_beta": ("trainer", ("ppo", "beta")),
-    "ppo_normal": ("trainer", ("ppo", "normal")),
+# name -> (family, setting): "trainer" runs hrtc.trainer.Trainer with (algo, dist, learner); "sb3" a
+# stable-baselines3 class on the raw task, or on the composed task (the action is the skill-weight vector).
+ALGORITHMS: dict[str, tuple[str, tuple[str, ...]]] = {
+    "hrtc_beta": ("trainer", ("hrtc", "beta", "ppo")),
+    "hrtc_beta_sac": ("trainer", ("hrtc", "beta", "sac")),
+    "hrtc_normal": ("trainer", ("hrtc", "normal", "ppo")),
+    "ppo_beta": ("trainer", ("ppo", "beta", "ppo")),
+    "ppo_normal": ("trainer", ("ppo", "normal", "ppo")),
     "sb3_ppo": ("sb3", ("PPO", "")),
     "sb3_sac": ("sb3", ("SAC", "")),
     "sb3_td3": ("sb3", ("TD3", "")),
     "sb3_a2c": ("sb3", ("A2C", "")),
+    "sb3_sac_composed": ("sb3", ("SAC", "composed")),
 }
 
 # What each algorithm runs with, for the table's notes (kept next to the code that does it).
 SETTINGS: dict[str, str] = {
-    "hrtc_beta": "HRTC, Beta weights: the task config's PPO settings and decision rate",
-    "hrtc_normal": "HRTC, Normal weights clipped to [0, 1]: the task config's PPO settings and decision rate",
+    "hrtc_beta": "HRTC, Beta weights, the paper's PPO: the task config's PPO settings and decision rate",
+    "hrtc_beta_sac": "HRTC, Beta weights, learned off-policy (learner=sac): the root config's SAC settings, the "
+    "task's decision rate",
+    "hrtc_normal": "HRTC, Normal weights clipped to [0, 1], PPO: the task config's PPO settings and decision rate",
     "ppo_beta": "our PPO on raw actions, Beta head: the root config's PPO settings (not the task's HRTC-tuned ones)",
     "ppo_normal": "our PPO on raw actions, Normal head: the root config's PPO settings",
     "sb3_ppo": "stable-baselines3 PPO, default hyperparameters (MLP 64x64, 2,048-step rollouts)",
     "sb3_sac": "stable-baselines3 SAC, defaults except actor and critics MLP 64x64 (the size of ours)",
     "sb3_td3": "stable-baselines3 TD3, defaults except MLP 64x64 and Gaussian action noise of std 0.1 (TD3 paper)",
     "sb3_a2c": "stable-baselines3 A2C, default hyperparameters (MLP 64x64, 5-step rollouts)",
+    "sb3_sac_composed": "stable-baselines3 SAC with its defaults (MLP 256x256) acting on ComposedEnv (action = the "
+    "weight vector, the task's decision rate): an off-the-shelf agent on our composition",
 }
 
 CURVE_KEYS = ("step", "episode_reward", "episode_reward_std", "episodes", "wall_seconds", "solve_reward")
@@ -67,6 +74,7 @@ class RunSpec:
     cpus: int = 1
     solve_threshold: float | None = None
     solve_episodes: int = 0
+    final_episodes: int = 0  # episodes of a last evaluation of the final policy (0: none)
 
     def __post_init__(self) -> None:
         if self.algo not in ALGORITHMS:
@@ -92,11 +100,12 @@ def run(spec: RunSpec) -> dict[str, Any]:
     family, _ = ALGORITHMS[spec.algo]
     Path(spec.run_dir).mkdir(parents=True, exist_ok=True)
     tic = time.perf_counter()
-    curve = _trainer_run(spec) if family == "trainer" else _sb3_run(spec)
+    curve, final = _trainer_run(spec) if family == "trainer" else _sb3_run(spec)
     return {
         **asdict(spec),
         "env_steps": int(curve["step"][-1]),
         "curve": curve,
+        "final_returns": final,
         "wall_seconds": time.perf_counter() - tic,
         "settings": SETTINGS[spec.algo],
         "host": platform.node(),
@@ -135,9 +144,10 @@ class _EvalCollector:
 
 def trainer_overrides(spec: RunSpec) -> list[str]:
     """The Hydra overrides that make ``spec`` a :class:`~hrtc.trainer.RunConfig` (what ``scripts/train.py`` takes)."""
-    algo, dist = ALGORITHMS[spec.algo][1]
+    algo, dist, learner = ALGORITHMS[spec.algo][1]
     overrides = [
-        f"task={spec.task}", f"algo={algo}", f"dist={dist}", f"seed={spec.seed}", f"steps={spec.steps}",
+        f"task={spec.task}", f"algo={algo}", f"dist={dist}", f"learner={learner}", f"seed={spec.seed}",
+        f"steps={spec.steps}",
         f"eval_every={spec.eval_every}", f"eval_episodes={spec.eval_episodes}", "progress=false",
         # One core: the envs step in this process. With more, each env (and its skills) gets its own process.
         f"vector={'async' if spec.cpus > 1 else 'sync'}", f"torch_threads={max(1, spec.cpus // 2)}",
@@ -168,7 +178,7 @@ def _hydra_value(value: Any) -> str:
     return str(value)
 
 
-def _trainer_run(spec: RunSpec) -> dict[str, list[float]]:
+def _trainer_run(spec: RunSpec) -> tuple[dict[str, list[float]], list[float]]:
     from hydra import compose, initialize_config_module
     from hydra.core.global_hydra import GlobalHydra
     from omegaconf import OmegaConf
@@ -185,7 +195,15 @@ def _trainer_run(spec: RunSpec) -> dict[str, list[float]]:
     trainer = Trainer(run_cfg, spec.run_dir, sinks=[collector])
     collector.trainer = trainer
     trainer.train()
-    return collector.curve
+    final = collector._returns(final_seeds(spec)).tolist() if spec.final_episodes else []
+    return collector.curve, final
+
+
+def final_seeds(spec: RunSpec) -> list[int]:
+    """The final evaluation's episode seeds: the evaluation seeds, ``final_episodes`` of them."""
+    from hrtc.trainer import eval_seeds
+
+    return eval_seeds(spec.seed, spec.final_episodes)
 
 
 def confirm_solve(spec: RunSpec, curve: Mapping[str, list[Any]], returns_of: Any) -> float | None:
@@ -253,20 +271,32 @@ def sb3_evaluate(model: Any, env: gym.Env, seeds: list[int]) -> np.ndarray:
     return np.asarray(returns)
 
 
-def sb3_train(spec: RunSpec, env_kwargs: Mapping[str, Any] | None = None) -> dict[str, list[Any]]:
-    """Train stable-baselines3 algorithm ``spec.algo`` on ``spec.task``; returns its evaluation curve (CURVE_KEYS).
+def sb3_train(spec: RunSpec, task: Mapping[str, Any] | None = None,
+              decision_every: int = 1) -> tuple[dict[str, list[Any]], list[float]]:  # fmt: skip
+    """Train stable-baselines3 algorithm ``spec.algo`` on ``spec.task`` (``task``: its config block, for the
+    env_kwargs and, for a composed algorithm, the skills acting every ``decision_every`` env steps); returns its
+    evaluation curve (CURVE_KEYS) and the final evaluation's returns.
 
-    ``learn`` runs in chunks of ``eval_every`` steps; on-policy algorithms finish their last rollout, so an evaluation
-    may come a little after the chunk's end (SB3 PPO: the next multiple of 2,048)."""
+    ``learn`` runs in chunks of ``eval_every`` env steps; on-policy algorithms finish their last rollout, so an
+    evaluation may come a little after the chunk's end (SB3 PPO: the next multiple of 2,048)."""
     import torch
 
     import envs
-    from hrtc.trainer import eval_seeds
+    from hrtc.trainer import eval_seeds, make_env
 
+    task = dict(task or {})
     torch.set_num_threads(spec.cpus)
     Path(spec.run_dir).mkdir(parents=True, exist_ok=True)
-    env = EpisodeCounter(envs.make(spec.task, **dict(env_kwargs or {})))
-    eval_env = envs.make(spec.task, **dict(env_kwargs or {}))
+    composed = ALGORITHMS[spec.algo][1][1] == "composed"
+    per_action = decision_every if composed else 1  # env steps per agent step
+
+    def build() -> gym.Env:
+        if composed:
+            return make_env(spec.task, "hrtc", task["skills"], env_kwargs=task.get("env_kwargs"),
+                            decision_every=decision_every)  # fmt: skip
+        return envs.make(spec.task, **dict(task.get("env_kwargs") or {}))
+
+    env, eval_env = EpisodeCounter(build()), build()
     model = sb3_model(spec.algo, env, spec.seed)
     seeds = eval_seeds(spec.seed, spec.eval_episodes)
     curve: dict[str, list[Any]] = {k: [] for k in (*CURVE_KEYS, "train_seconds")}
@@ -274,7 +304,7 @@ def sb3_train(spec: RunSpec, env_kwargs: Mapping[str, Any] | None = None) -> dic
 
     def record() -> None:
         returns = sb3_evaluate(model, eval_env, seeds)
-        curve["step"].append(int(model.num_timesteps))
+        curve["step"].append(int(model.num_timesteps) * per_action)
         curve["episode_reward"].append(float(returns.mean()))
         curve["episode_reward_std"].append(float(returns.std()))
         curve["episodes"].append(env.episodes)
@@ -284,14 +314,16 @@ def sb3_train(spec: RunSpec, env_kwargs: Mapping[str, Any] | None = None) -> dic
         _write_csv(Path(spec.run_dir) / "eval.csv", curve)  # a run's progress, as the trainer's eval.csv shows it
 
     record()
-    while model.num_timesteps < spec.steps:
+    while model.num_timesteps * per_action < spec.steps:
         t0 = time.perf_counter()
-        model.learn(min(spec.eval_every, spec.steps - model.num_timesteps), reset_num_timesteps=False)
+        remaining = spec.steps - model.num_timesteps * per_action
+        model.learn(-(-min(spec.eval_every, remaining) // per_action), reset_num_timesteps=False)
         train_seconds += time.perf_counter() - t0
         record()
+    final = sb3_evaluate(model, eval_env, final_seeds(spec)).tolist() if spec.final_episodes else []
     env.close()
     eval_env.close()
-    return curve
+    return curve, final
 
 
 def _write_csv(path: Path, curve: Mapping[str, list[Any]]) -> None:
@@ -301,10 +333,20 @@ def _write_csv(path: Path, curve: Mapping[str, list[Any]]) -> None:
     path.write_text("\n".join(lines) + "\n")
 
 
-def _sb3_run(spec: RunSpec) -> dict[str, list[float]]:
+def _sb3_run(spec: RunSpec) -> tuple[dict[str, list[float]], list[float]]:
     from hrtc.cli import task_config
 
-    return sb3_train(spec, task_config(spec.task).get("env_kwargs") or {})
+    task = task_config(spec.task)
+    return sb3_train(spec, task, int(root_and_task_value(spec.task, "algo", "decision_every", 1)))
+
+
+def root_and_task_value(task: str, block: str, key: str, default: Any) -> Any:
+    """``block.key`` as the task config sets it (over the root config's), e.g. the task's decision rate."""
+    from omegaconf import OmegaConf
+
+    text = (resources.files("hrtc.conf") / "task" / f"{task}.yaml").read_text()
+    value = OmegaConf.to_container(OmegaConf.create(text)).get(block, {}).get(key)  # type: ignore[union-attr]
+    return default if value is None else value
 
 
 def last_eval_step(run_dir: Path) -> int:

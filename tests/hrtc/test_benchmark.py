@@ -146,7 +146,7 @@ def test_headline_says_where_hrtc_does_not_win() -> None:
 
 def test_headline_names_runs_that_met_the_rule_before_any_update() -> None:
     text = "\n".join(headline(_outcomes({"hrtc_beta": [0, 4000, 0], "ppo_beta": [8000, None, None]})))
-    assert "HRTC Beta: 2 of 3 runs (seeds 1, 3) met the rule at step 0" in text
+    assert "HRTC Beta (PPO): 2 of 3 runs (seeds 1, 3) met the rule at step 0" in text
     assert "PPO Beta:" not in text.split("Headline holds")[-1]
     assert "step 0" not in "\n".join(headline(_outcomes({"hrtc_beta": [1000], "ppo_beta": [2000]})))
 
@@ -154,7 +154,7 @@ def test_headline_names_runs_that_met_the_rule_before_any_update() -> None:
 # --------------------------------------------------------------------------------------------------- end to end
 def _bench(tmp_path: Path, *extra: str) -> subprocess.CompletedProcess:
     cmd = [sys.executable, str(ROOT / "scripts" / "benchmark.py"), "task=cartpole_swingup", "budget=400",
-           "eval_every=200", "eval_episodes=1", "threshold=50", "cpus=2", "progress=false",
+           "eval_every=200", "eval_episodes=1", "threshold=50", "cpus=2", "progress=false", "final_episodes=1",
            f"out={tmp_path / 'out'}", f"runs_dir={tmp_path / 'runs'}", *extra]  # fmt: skip
     return subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, timeout=300)
 
@@ -173,10 +173,24 @@ def test_benchmark_end_to_end_through_a_local_ray(tmp_path: Path) -> None:
         assert np.all(np.isfinite(run["curve"]["episode_reward"]))
         assert len(run["curve"]["episodes"]) == len(steps) and run["curve"]["episodes"][-1] == 0  # 1000-step episodes
         assert run["wall_seconds"] > 0 and Path(run["run_dir"]).exists()
+        assert len(run["final_returns"]) == 1 and np.isfinite(run["final_returns"][0])
     # Each seed trained its own policy: the two seeds' curves differ.
     assert results["runs"]["sb3_a2c/seed1"]["curve"] != results["runs"]["sb3_a2c/seed2"]["curve"]
     table = (out / "table.md").read_text()
     assert "| seed | PPO Beta | SB3 A2C |" in table and "IQM [95% CI]" in table and "## Headline" in table
+    # The references over the same skills stand beside the learners: each skill alone, the untrained blend, the
+    # task's declared hand rule (the switching rule scores far above any skill alone even on one episode).
+    refs = results["references"]
+    assert {
+        "swingup alone",
+        "balance alone",
+        "tracker alone",
+        "hold alone",
+        "untrained blend (every weight 0.5)",
+    } <= set(refs)
+    rule = next(v for k, v in refs.items() if k.startswith("switching rule"))
+    assert rule[0] > 850 > refs["swingup alone"][0] + 200
+    assert "## References over the same skills (1 episodes each" in table
     assert (out / "curves.png").stat().st_size > 10_000
     summary = json.loads((out / "summary.json").read_text())  # the table's numbers, read back
     assert set(summary["runs"]) == set(results["runs"]) and set(summary["algorithms"]) == {"ppo_beta", "sb3_a2c"}
@@ -206,8 +220,18 @@ def test_benchmark_in_a_process_pool_skips_finished_runs(tmp_path: Path) -> None
 def test_benchmark_rejects_bad_arguments_in_one_line(tmp_path: Path) -> None:
     proc = _bench(tmp_path, "algos=[hrtc_beta,sac]")
     assert proc.returncode == 2 and proc.stderr.strip() == (
-        "error: unknown algorithm 'sac'; valid: hrtc_beta, hrtc_normal, ppo_beta, ppo_normal, sb3_ppo, sb3_sac, "
-        "sb3_td3, sb3_a2c"
+        "error: unknown algorithm 'sac'; valid: hrtc_beta, hrtc_beta_sac, hrtc_normal, ppo_beta, ppo_normal, sb3_ppo, "
+        "sb3_sac, sb3_td3, sb3_a2c, sb3_sac_composed"
     )
     proc = _bench(tmp_path, "seedz=3")
     assert proc.returncode == 2 and proc.stderr.startswith("error: unknown key 'seedz'")
+
+
+def test_sb3_sac_acts_on_the_composed_env_and_counts_env_steps(tmp_path: Path) -> None:
+    """An off-the-shelf agent on ComposedEnv: its action is the weight vector; its steps count decision_every env
+    steps each (cartpole_swingup: 5)."""
+    from hrtc.benchmark.runs import RunSpec, run
+
+    result = run(RunSpec("cartpole_swingup", "sb3_sac_composed", 1, 500, 500, 1, str(tmp_path), final_episodes=1))
+    assert result["curve"]["step"] == [0, 500]
+    assert len(result["final_returns"]) == 1 and result["final_returns"][0] >= 0

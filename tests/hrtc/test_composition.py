@@ -79,8 +79,9 @@ def test_counter_is_a_skill():
     assert isinstance(_Counter(), Skill)
 
 
-def _composed(*slots: SkillSlot, mode: str = "sum") -> ComposedEnv:
-    return ComposedEnv(make("cartpole_swingup"), SkillLibrary(list(slots)), mode)  # type: ignore[arg-type]
+def _composed(*slots: SkillSlot, mode: str = "sum", diagnostics: bool = False) -> ComposedEnv:
+    library = SkillLibrary(list(slots))
+    return ComposedEnv(make("cartpole_swingup"), library, mode, diagnostics=diagnostics)  # type: ignore[arg-type]
 
 
 def test_composed_env_applies_the_blend_and_reports_it():
@@ -136,11 +137,11 @@ class _NaNSkill:
 
 
 def test_non_finite_proposal_falls_back_and_is_counted():
-    env = _composed(SkillSlot("bad", _NaNSkill(), KeysFilter(())))
+    env = _composed(SkillSlot("bad", _NaNSkill(), KeysFilter(())), diagnostics=True)
     env.reset(seed=0)
     _, _, _, _, info = env.step(np.array([1.0]))
     assert np.all(np.isfinite(info["action"])) and info["action"][0] == 0.0
-    assert info["skill_faults"][0] >= 1
+    assert info["skill_faults"][0] >= 1 and info["skills"]["bad"]["fault"] == 1.0
 
 
 def test_build_library_from_config_and_its_errors():

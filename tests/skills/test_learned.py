@@ -19,8 +19,8 @@ from hrtc.composition import build_library
 from hrtc.errors import CheckpointError, ConfigError, ShapeError
 from hrtc.policy import ActorCritic
 from hrtc.ppo import PPOConfig
-from hrtc.trainer import RunConfig, Trainer
-from skills.learned import PolicySkill, load_policy_weights
+from hrtc.trainer import RunConfig, Trainer, load_policy_weights
+from skills.learned import PolicySkill
 
 # Cheap skills (no solver): a child library whose proposals the tests can recompute by hand.
 CHILDREN = {

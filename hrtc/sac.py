@@ -1,0 +1,324 @@
+"""Soft actor-critic for the Beta meta-policy (Haarnoja et al. 2018), as plain functions plus a replay buffer.
+
+The meta-policy is the same :class:`~hrtc.policy.ActorCritic` PPO trains: its actor outputs Beta(alpha_k, beta_k) per
+weight. SAC differs in how it learns the actor: twin critics Q_i(s, w) on (state, weights) are fitted to the soft
+Bellman target, and the actor maximises ``min_i Q_i(s, w) - temperature * log pi(w | s)`` through reparameterised
+Beta samples (``torch.distributions.Beta.rsample``: implicit reparameterisation gradients). The temperature is tuned
+so that the policy's entropy stays near ``target_entropy``. The actor-critic's own critic V(s) (the master critic)
+is fitted to the soft value ``min_i Q_i(s, w) - temperature * log pi(w | s)`` with ``w ~ pi``, so recordings and
+learned skills read a meaningful V(s) whichever learner trained the policy.
+
+Every function here is pure (tensors in, tensors or floats out) except :func:`soft_update` (in-place Polyak
+averaging) and the buffer.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any, NamedTuple
+
+import numpy as np
+import torch
+from torch import nn
+from torch.nn import functional as F
+
+from hrtc.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class SACConfig:
+    """The ``sac`` block of a run's config (see ``hrtc/conf/config.yaml`` for what each key means)."""
+
+    learning_rate: float = 3e-4
+    gamma: float = 0.99  # per env step; a decision spanning k env steps is discounted by gamma**k
+    tau: float = 0.005
+    batch_size: int = 256
+    buffer_size: int = 100_000
+    learning_starts: int = 500  # decisions (summed over envs) taken with the initial policy before any update
+    updates_per_decision: float = 1.0  # gradient steps per decision collected (the update-to-data ratio)
+    q_hidden: tuple[int, ...] = (256, 256)
+    target_entropy_per_weight: float = -1.0  # target entropy = this x K (nats)
+    init_temperature: float = 0.1
+    log_every: int = 250  # decisions between rows of train.csv
+    normalize_obs: bool = False  # a replay buffer holds old samples: no drifting normaliser by default
+
+    def __post_init__(self) -> None:
+        for name in ("batch_size", "buffer_size", "log_every"):
+            value = getattr(self, name)
+            if not isinstance(value, int) or isinstance(value, bool) or value < 1:
+                raise ConfigError(f"sac.{name} must be a positive integer, got {value!r}")
+        if not isinstance(self.learning_starts, int) or self.learning_starts < 0:
+            raise ConfigError(f"sac.learning_starts must be a non-negative integer, got {self.learning_starts!r}")
+        if not 0.0 < self.learning_rate < 1.0:
+            raise ConfigError(f"sac.learning_rate must be in (0, 1), got {self.learning_rate}")
+        if not 0.0 <= self.gamma <= 1.0:
+            raise ConfigError(f"sac.gamma must be in [0, 1], got {self.gamma}")
+        if not 0.0 < self.tau <= 1.0:
+            raise ConfigError(f"sac.tau must be in (0, 1], got {self.tau}")
+        if not self.updates_per_decision > 0:
+            raise ConfigError(f"sac.updates_per_decision must be > 0, got {self.updates_per_decision}")
+        if not self.init_temperature > 0:
+            raise ConfigError(f"sac.init_temperature must be > 0, got {self.init_temperature}")
+        if not self.q_hidden or any(int(h) < 1 for h in self.q_hidden):
+            raise ConfigError(f"sac.q_hidden must list positive layer widths, got {list(self.q_hidden)}")
+
+
+# --------------------------------------------------------------------------------------------------- replay buffer
+class ReplayBatch(NamedTuple):
+    """Transitions ``(s, w, r, s', terminated)``: obs (B, obs_dim), samples (B, K), rewards (B,), next_obs (B, obs_dim),
+    terminated (B,) as floats (1 where s' is terminal: nothing is bootstrapped from it; a time limit is not)."""
+
+    obs: torch.Tensor
+    samples: torch.Tensor
+    rewards: torch.Tensor
+    next_obs: torch.Tensor
+    terminated: torch.Tensor
+
+
+class ReplayBuffer:
+    """A ring buffer of transitions in preallocated float32 arrays; the oldest is overwritten when full."""
+
+    def __init__(self, capacity: int, obs_dim: int, sample_dim: int) -> None:
+        self.capacity = int(capacity)
+        self.obs = np.zeros((capacity, obs_dim), np.float32)
+        self.next_obs = np.zeros((capacity, obs_dim), np.float32)
+        self.samples = np.zeros((capacity, sample_dim), np.float32)
+        self.rewards = np.zeros(capacity, np.float32)
+        self.terminated = np.zeros(capacity, np.float32)
+        self.position, self.size = 0, 0
+
+    def __len__(self) -> int:
+        return self.size
+
+    def add(self, obs: np.ndarray, samples: np.ndarray, rewards: np.ndarray, next_obs: np.ndarray,
+            terminated: np.ndarray) -> None:  # fmt: skip
+        """Append a batch of N transitions (leading axis N on every argument)."""
+        n = len(rewards)
+        idx = (self.position + np.arange(n)) % self.capacity
+        self.obs[idx], self.samples[idx], self.rewards[idx] = obs, samples, rewards
+        self.next_obs[idx], self.terminated[idx] = next_obs, terminated
+        self.position = int((self.position + n) % self.capacity)
+        self.size = min(self.size + n, self.capacity)
+
+    def sample(self, batch_size: int, generator: torch.Generator) -> ReplayBatch:
+        """``batch_size`` transitions drawn uniformly with replacement from what the buffer holds."""
+        idx = torch.randint(0, self.size, (batch_size,), generator=generator).numpy()
+        return ReplayBatch(*(torch.from_numpy(a[idx]) for a in (self.obs, self.samples, self.rewards, self.next_obs,
+                                                                 self.terminated)))  # fmt: skip
+
+    def state_dict(self) -> dict[str, torch.Tensor | int]:
+        """The filled part in chronological order (oldest first), as tensors (``weights_only`` loads them)."""
+        order = (np.arange(self.size) + (self.position if self.size == self.capacity else 0)) % self.capacity
+        arrays = {k: torch.from_numpy(getattr(self, k)[order].copy())
+                  for k in ("obs", "samples", "rewards", "next_obs", "terminated")}  # fmt: skip
+        return {**arrays, "capacity": self.capacity}
+
+    def load_state_dict(self, state: dict) -> None:
+        self.position, self.size = 0, 0
+        n = int(state["rewards"].shape[0])
+        keep = slice(max(0, n - self.capacity), n)  # a smaller buffer keeps the newest
+        self.add(*(np.asarray(state[k][keep].numpy()) for k in ("obs", "samples", "rewards", "next_obs",
+                                                                  "terminated")))  # fmt: skip
+
+
+# --------------------------------------------------------------------------------------------------- networks
+class TwinQ(nn.Module):
+    """``n`` critics Q_i(s, w): ReLU MLPs on the concatenated state and weights. (B, obs_dim), (B, K) -> (n, B).
+
+    (Stacking the critics' layers into batched matrix products was measured slower on CPU than separate layers.)"""
+
+    def __init__(self, obs_dim: int, sample_dim: int, hidden: Sequence[int], n: int = 2) -> None:
+        super().__init__()
+        self.critics = nn.ModuleList(_relu_mlp(obs_dim + sample_dim, hidden) for _ in range(n))
+
+    def forward(self, obs: torch.Tensor, samples: torch.Tensor) -> torch.Tensor:
+        x = torch.cat([obs, samples], dim=-1)
+        return torch.stack([critic(x).squeeze(-1) for critic in self.critics])
+
+
+def _relu_mlp(in_dim: int, hidden: Sequence[int]) -> nn.Sequential:
+    layers: list[nn.Module] = []
+    for width in hidden:
+        layers += [nn.Linear(in_dim, int(width)), nn.ReLU()]
+        in_dim = int(width)
+    return nn.Sequential(*layers, nn.Linear(in_dim, 1))
+
+
+# --------------------------------------------------------------------------------------------------- the math
+def soft_q_target(rewards: torch.Tensor, terminated: torch.Tensor, next_q1: torch.Tensor, next_q2: torch.Tensor,
+                  next_logp: torch.Tensor, temperature: float | torch.Tensor,
+                  gamma: float) -> torch.Tensor:  # fmt: skip
+    """The soft Bellman target ``r + gamma (1 - terminated) (min(Q1', Q2') - temperature log pi(w' | s'))``, (B,)."""
+    soft_value = torch.min(next_q1, next_q2) - temperature * next_logp
+    return rewards + gamma * (1.0 - terminated) * soft_value
+
+
+def temperature_loss(log_temperature: torch.Tensor, logp: torch.Tensor, target_entropy: float) -> torch.Tensor:
+    """``-log(temperature) * (log pi + target_entropy)``: its gradient raises the temperature while the policy's
+    entropy ``-log pi`` is below the target and lowers it above (Haarnoja et al. 2018b, Eq. 18, in log space)."""
+    return -(log_temperature * (logp.detach() + target_entropy)).mean()
+
+
+def soft_update(target: nn.Module, source: nn.Module, tau: float) -> None:
+    """Polyak averaging in place: ``target <- (1 - tau) target + tau source``."""
+    with torch.no_grad():
+        for t, s in zip(target.parameters(), source.parameters(), strict=True):
+            t.mul_(1.0 - tau).add_(s, alpha=tau)
+
+
+def rsample_with_logp(distribution: object) -> tuple[torch.Tensor, torch.Tensor]:
+    """A reparameterised sample ``w`` of a weight distribution and its log-probability (summed over weights)."""
+    w = distribution.rsample()  # type: ignore[attr-defined]
+    return w, distribution.log_prob(w)  # type: ignore[attr-defined]
+
+
+def sac_losses(policy: nn.Module, critics: TwinQ, target_critics: TwinQ, batch: ReplayBatch,
+               temperature: float | torch.Tensor, gamma: float) -> dict[str, torch.Tensor]:  # fmt: skip
+    """The critics', actor's and master critic's losses on one minibatch, with the actor's log-probabilities.
+
+    ``policy`` is an :class:`~hrtc.policy.ActorCritic` (``distribution(obs)``, ``value(obs)``). The critics fit the
+    soft target on the stored weights; the actor maximises ``min_i Q_i(s, w) - temperature log pi(w | s)`` on fresh
+    reparameterised weights; V(s) fits that soft value. The caller must keep the actor loss's gradient out of the
+    critics (see :meth:`SACLearner._gradient_step`)."""
+    with torch.no_grad():
+        next_w, next_logp = rsample_with_logp(policy.distribution(batch.next_obs))
+        next_q = target_critics(batch.next_obs, next_w)
+        target = soft_q_target(batch.rewards, batch.terminated, next_q[0], next_q[1], next_logp, temperature, gamma)
+    q_loss = ((critics(batch.obs, batch.samples) - target) ** 2).mean(-1).sum()
+    w, logp = rsample_with_logp(policy.distribution(batch.obs))
+    q_pi = critics(batch.obs, w).min(0).values
+    actor_loss = (temperature * logp - q_pi).mean()
+    value_loss = F.mse_loss(policy.value(batch.obs), (q_pi - temperature * logp).detach())
+    return {"q": q_loss, "actor": actor_loss, "value": value_loss, "logp": logp, "q_pi": q_pi, "target": target}
+
+
+# --------------------------------------------------------------------------------------------------- the learner
+_SUMMED = ("losses/q_loss", "losses/policy_loss", "losses/value_loss", "losses/entropy", "losses/q_mean")
+SAC_COLUMNS = ("losses/q_loss", "losses/policy_loss", "losses/value_loss", "losses/entropy", "losses/temperature",
+               "losses/q_mean", "losses/gradient_steps", "charts/learning_rate")  # fmt: skip
+
+
+class SACLearner:
+    """Off-policy learning of the meta-policy: a replay buffer, twin critics Q(s, w) with Polyak targets, the
+    reparameterised Beta actor, the temperature tuned to ``target_entropy_per_weight * K``.
+
+    Every observed decision goes to the buffer; once it holds ``learning_starts`` decisions, each ``update`` takes
+    ``updates_per_decision`` gradient steps per decision observed since the last one. It runs while the vector envs
+    step (``update_while_stepping``), so its cost overlaps the skills' solves.
+
+    Args:
+        policy: the actor-critic whose actor is trained (its critic V(s) is fitted to the soft value).
+        cfg: the SAC settings.
+        num_envs: envs per vector step (decisions per ``observe``).
+        gamma: the discount per decision (``cfg.gamma ** decision_every``).
+        generator: draws the replay minibatches.
+    """
+
+    update_while_stepping = True
+    columns = SAC_COLUMNS
+
+    def __init__(self, policy: nn.Module, cfg: SACConfig, num_envs: int, gamma: float,
+                 generator: torch.Generator) -> None:  # fmt: skip
+        import copy
+
+        self.policy, self.cfg, self.gamma, self.generator = policy, cfg, gamma, generator
+        obs_dim, k = int(policy.obs_dim), int(policy.out_dim)
+        self.critics = TwinQ(obs_dim, k, cfg.q_hidden)
+        self.target_critics = copy.deepcopy(self.critics).requires_grad_(False)
+        self.q_optimizer = torch.optim.Adam(self.critics.parameters(), lr=cfg.learning_rate)
+        self.actor_optimizer = torch.optim.Adam(policy.parameters(), lr=cfg.learning_rate)
+        self.log_temperature = torch.tensor(float(np.log(cfg.init_temperature)), requires_grad=True)
+        self.temperature_optimizer = torch.optim.Adam([self.log_temperature], lr=cfg.learning_rate)
+        self.target_entropy = cfg.target_entropy_per_weight * k
+        self.buffer = ReplayBuffer(cfg.buffer_size, obs_dim, k)
+        self.num_envs = num_envs
+        self.decisions, self.gradient_steps = 0, 0
+        self._credit = 0.0  # gradient steps owed to the decisions observed
+        self._since_row = 0  # decisions since the last train.csv row
+        self._sums: torch.Tensor | None = None  # sums of the _SUMMED statistics over the row's gradient steps
+        self._steps_in_row = 0
+
+    @torch.no_grad()
+    def act(self, obs: np.ndarray) -> tuple[np.ndarray, object]:
+        distribution = self.policy.distribution(torch.as_tensor(obs))
+        return distribution.sample().numpy(), distribution
+
+    def observe(self, step: Any) -> None:
+        self.buffer.add(step.obs, step.samples, step.rewards.astype(np.float32), step.next_obs,
+                        step.terminated.astype(np.float32))  # fmt: skip
+        n = len(step.rewards)
+        self.decisions += n
+        self._since_row += n
+        if self.decisions >= self.cfg.learning_starts and len(self.buffer) >= min(self.cfg.batch_size, 2):
+            self._credit += n * self.cfg.updates_per_decision
+
+    @property
+    def at_boundary(self) -> bool:
+        return True  # every observed decision is in the buffer
+
+    @property
+    def temperature(self) -> float:
+        return float(self.log_temperature.detach().exp())
+
+    def update(self) -> dict[str, float] | None:
+        steps = int(self._credit)
+        if steps == 0:
+            return self._row() if self._since_row >= self.cfg.log_every else None
+        self._credit -= steps
+        for _ in range(steps):
+            self._gradient_step()
+        return self._row() if self._since_row >= self.cfg.log_every else {}
+
+    def _gradient_step(self) -> None:
+        batch = self.buffer.sample(self.cfg.batch_size, self.generator)
+        temperature = self.log_temperature.exp().detach()
+        losses = sac_losses(self.policy, self.critics, self.target_critics, batch, temperature, self.gamma)
+        # Each backward pass accumulates into its own parameters only: the actor's loss never moves the critics.
+        self.actor_optimizer.zero_grad()
+        (losses["actor"] + losses["value"]).backward(inputs=list(self.policy.parameters()))
+        self.q_optimizer.zero_grad()
+        losses["q"].backward(inputs=list(self.critics.parameters()))
+        self.q_optimizer.step()
+        self.actor_optimizer.step()
+        self.temperature_optimizer.zero_grad()
+        temperature_loss(self.log_temperature, losses["logp"], self.target_entropy).backward()
+        self.temperature_optimizer.step()
+        soft_update(self.target_critics, self.critics, self.cfg.tau)
+        self.gradient_steps += 1
+        with torch.no_grad():  # summed as tensors: one conversion per train.csv row, not per gradient step
+            values = torch.stack([losses["q"], losses["actor"], losses["value"], -losses["logp"].mean(),
+                                  losses["q_pi"].mean()])  # fmt: skip
+            self._sums = values if self._sums is None else self._sums + values
+            self._steps_in_row += 1
+
+    def _row(self) -> dict[str, float]:
+        n = self._steps_in_row
+        means = (self._sums / n).tolist() if n else [float("nan")] * len(_SUMMED)
+        row = dict(zip(_SUMMED, means, strict=True))
+        row.update({"losses/gradient_steps": float(n), "losses/temperature": self.temperature,
+                    "charts/learning_rate": self.cfg.learning_rate})  # fmt: skip
+        self._sums, self._steps_in_row, self._since_row = None, 0, 0
+        return row
+
+    def state_dict(self) -> dict[str, Any]:
+        return {
+            "critics": self.critics.state_dict(), "target_critics": self.target_critics.state_dict(),
+            "q_optimizer": self.q_optimizer.state_dict(), "actor_optimizer": self.actor_optimizer.state_dict(),
+            "log_temperature": self.log_temperature.detach().clone(),
+            "temperature_optimizer": self.temperature_optimizer.state_dict(),
+            "buffer": self.buffer.state_dict(),
+            "counters": {"decisions": self.decisions, "gradient_steps": self.gradient_steps, "credit": self._credit,
+                         "since_row": self._since_row},
+        }  # fmt: skip
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        for name in ("critics", "target_critics", "q_optimizer", "actor_optimizer", "temperature_optimizer"):
+            getattr(self, name).load_state_dict(state[name])
+        with torch.no_grad():
+            self.log_temperature.copy_(state["log_temperature"])
+        self.buffer.load_state_dict(state["buffer"])
+        counters = state["counters"]
+        self.decisions, self.gradient_steps = int(counters["decisions"]), int(counters["gradient_steps"])
+        self._credit, self._since_row = float(counters["credit"]), int(counters["since_row"])
+        self._sums, self._steps_in_row = None, 0

@@ -1,0 +1,217 @@
+"""The off-policy learner's pieces in isolation, and a meta-policy that learns a state-dependent switch with it."""
+
+import gymnasium as gym
+import numpy as np
+import pandas as pd
+import pytest
+import torch
+
+import envs
+from hrtc.distributions import BetaDistribution
+from hrtc.learner import Step
+from hrtc.policy import ActorCritic
+from hrtc.sac import (
+    ReplayBuffer,
+    SACConfig,
+    SACLearner,
+    TwinQ,
+    sac_losses,
+    soft_q_target,
+    soft_update,
+    temperature_loss,
+)
+from hrtc.trainer import RunConfig, Trainer, load_policy
+
+
+# --------------------------------------------------------------------------------------------------- Beta rsample
+@pytest.mark.parametrize(("a", "b"), [(1.5, 1.5), (3.0, 1.2), (1.1, 6.0)])
+def test_beta_rsample_gradient_matches_finite_differences_of_the_mean(a, b):
+    """d E[w] / d(alpha, beta) from reparameterised samples equals the finite-difference derivative of the exact mean
+    alpha / (alpha + beta)."""
+    torch.manual_seed(0)
+    alpha = torch.tensor([a], dtype=torch.float64, requires_grad=True)
+    beta = torch.tensor([b], dtype=torch.float64, requires_grad=True)
+    w = BetaDistribution(alpha.expand(400_000, 1), beta.expand(400_000, 1)).rsample()
+    w.mean().backward()
+
+    def mean(x: float, y: float) -> float:
+        return x / (x + y)
+
+    h = 1e-5
+    fd_alpha = (mean(a + h, b) - mean(a - h, b)) / (2 * h)
+    fd_beta = (mean(a, b + h) - mean(a, b - h)) / (2 * h)
+    assert alpha.grad.item() == pytest.approx(fd_alpha, abs=3e-3)
+    assert beta.grad.item() == pytest.approx(fd_beta, abs=3e-3)
+
+
+def test_beta_rsample_second_moment_gradient_matches_finite_differences():
+    """The same for E[w^2] = alpha (alpha + 1) / ((alpha + beta)(alpha + beta + 1)): not only the mean is right."""
+    torch.manual_seed(1)
+    a, b = 2.0, 3.0
+    alpha = torch.tensor([a], dtype=torch.float64, requires_grad=True)
+    w = BetaDistribution(alpha.expand(400_000, 1), torch.full((400_000, 1), b, dtype=torch.float64)).rsample()
+    (w**2).mean().backward()
+
+    def second(x: float) -> float:
+        return x * (x + 1) / ((x + b) * (x + b + 1))
+
+    h = 1e-5
+    assert alpha.grad.item() == pytest.approx((second(a + h) - second(a - h)) / (2 * h), abs=2e-3)
+
+
+# --------------------------------------------------------------------------------------------------- the math
+def test_soft_q_target_by_hand():
+    rewards = torch.tensor([1.0, 2.0, 0.5])
+    terminated = torch.tensor([0.0, 1.0, 0.0])
+    q1, q2 = torch.tensor([10.0, 10.0, -1.0]), torch.tensor([8.0, 12.0, -3.0])
+    logp = torch.tensor([-1.0, 0.5, 2.0])
+    target = soft_q_target(rewards, terminated, q1, q2, logp, temperature=0.2, gamma=0.9)
+    expected = [1.0 + 0.9 * (8.0 + 0.2), 2.0, 0.5 + 0.9 * (-3.0 - 0.4)]
+    np.testing.assert_allclose(target.numpy(), expected, rtol=1e-6)
+
+
+def test_temperature_rises_below_the_target_entropy_and_falls_above():
+    for logp, direction in ((torch.full((64,), 3.0), 1), (torch.full((64,), -3.0), -1)):  # entropy -3, then +3
+        log_t = torch.tensor(0.0, requires_grad=True)
+        optimizer = torch.optim.SGD([log_t], lr=0.1)
+        for _ in range(5):
+            optimizer.zero_grad()
+            temperature_loss(log_t, logp, target_entropy=-1.0).backward()
+            optimizer.step()
+        assert direction * log_t.item() > 0.5
+
+
+def test_soft_update_is_polyak_averaging():
+    source, target = torch.nn.Linear(3, 2), torch.nn.Linear(3, 2)
+    before = target.weight.detach().clone()
+    soft_update(target, source, tau=0.25)
+    np.testing.assert_allclose(target.weight.detach().numpy(), (0.75 * before + 0.25 * source.weight).detach().numpy())
+    soft_update(target, source, tau=1.0)
+    assert torch.equal(target.weight, source.weight)
+
+
+def test_twin_critics_are_independent_networks():
+    q = TwinQ(5, 3, (16, 16))
+    out = q(torch.randn(7, 5), torch.rand(7, 3))
+    assert out.shape == (2, 7)
+    assert not torch.allclose(out[0], out[1])
+
+
+def test_the_actor_loss_never_moves_the_critics():
+    torch.manual_seed(0)
+    policy, critics = ActorCritic(4, 3, "beta", (16,)), TwinQ(4, 3, (16,))
+    target = TwinQ(4, 3, (16,))
+    buffer = ReplayBuffer(100, 4, 3)
+    rng = np.random.default_rng(0)
+    buffer.add(rng.normal(size=(50, 4)), rng.random((50, 3)), rng.random(50), rng.normal(size=(50, 4)), np.zeros(50))
+    losses = sac_losses(policy, critics, target, buffer.sample(32, torch.Generator().manual_seed(0)), 0.1, 0.9)
+    (losses["actor"] + losses["value"]).backward(inputs=list(policy.parameters()))
+    assert all(p.grad is None for p in critics.parameters())
+    assert all(p.grad is not None for p in policy.actor_head.parameters())
+
+
+# --------------------------------------------------------------------------------------------------- replay buffer
+def test_replay_buffer_wraps_around_and_keeps_the_newest():
+    buffer = ReplayBuffer(5, 1, 1)
+    for i in range(7):  # 7 single transitions into 5 places: 0 and 1 are overwritten
+        buffer.add(np.full((1, 1), i), np.full((1, 1), i), np.array([i]), np.full((1, 1), i + 1), np.array([0.0]))
+    assert len(buffer) == 5 and buffer.position == 2
+    assert sorted(buffer.rewards.tolist()) == [2, 3, 4, 5, 6]
+    state = buffer.state_dict()
+    assert state["rewards"].tolist() == [2, 3, 4, 5, 6]  # oldest first
+    other = ReplayBuffer(3, 1, 1)
+    other.load_state_dict(state)  # a smaller buffer keeps the newest
+    assert sorted(other.rewards.tolist()) == [4, 5, 6]
+
+
+def test_replay_buffer_samples_whole_transitions_uniformly():
+    buffer = ReplayBuffer(10, 2, 1)
+    rng = np.random.default_rng(0)
+    obs = rng.normal(size=(4, 2)).astype(np.float32)
+    buffer.add(obs, obs[:, :1], obs[:, 0], obs + 1, np.array([0, 1, 0, 1]))
+    batch = buffer.sample(4000, torch.Generator().manual_seed(0))
+    np.testing.assert_array_equal(batch.next_obs.numpy(), batch.obs.numpy() + 1)  # rows stay together
+    np.testing.assert_array_equal(batch.rewards.numpy(), batch.obs[:, 0].numpy())
+    counts = np.unique(batch.rewards.numpy(), return_counts=True)[1]
+    assert len(counts) == 4 and counts.min() > 850  # only what was added, about 1000 each
+
+
+def test_sac_config_validation():
+    with pytest.raises(Exception, match="sac.batch_size"):
+        SACConfig(batch_size=0)
+    with pytest.raises(Exception, match="sac.updates_per_decision"):
+        SACConfig(updates_per_decision=0)
+
+
+def test_learner_takes_updates_per_decision_gradient_steps_after_learning_starts():
+    policy = ActorCritic(2, 2, "beta", (8,))
+    learner = SACLearner(policy, SACConfig(batch_size=4, learning_starts=8, updates_per_decision=0.5, q_hidden=(8,),
+                                           log_every=1000), 2, 0.9, torch.Generator().manual_seed(0))  # fmt: skip
+    obs = np.zeros((2, 2), np.float32)
+    step = Step(obs, np.full((2, 2), 0.5, np.float32), np.ones(2), obs, np.zeros(2, bool), np.zeros(2, bool))
+    for _ in range(4):  # 8 decisions: learning starts with the 4th step
+        learner.observe(step)
+        learner.update()
+    assert learner.gradient_steps == 1  # 2 decisions x 0.5
+    for _ in range(6):
+        learner.observe(step)
+        learner.update()
+    assert learner.gradient_steps == 7
+
+
+# --------------------------------------------------------------------------------------------------- learning
+SWITCH_TASK = "test_switch_line"
+
+
+class SwitchLine(gym.Env):
+    """A point on a line, reward -|x| per step, 25 steps from a random start in [-1, 1]: the right move depends on
+    the side, so a meta-policy over a left and a right skill must switch with the state."""
+
+    def __init__(self) -> None:
+        self.observation_space = gym.spaces.Box(-np.inf, np.inf, (1,), np.float32)
+        self.action_space = gym.spaces.Box(-1.0, 1.0, (1,), np.float32)
+
+    def skill_state(self):
+        return {"position": np.array([self.x])}
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        self.x, self.t = float(self.np_random.uniform(-1, 1)), 0
+        return np.array([self.x], np.float32), {}
+
+    def step(self, action):
+        self.x = float(np.clip(self.x + 0.2 * float(action[0]), -2, 2))
+        self.t += 1
+        return np.array([self.x], np.float32), -abs(self.x), False, self.t >= 25, {}
+
+
+if SWITCH_TASK not in envs.names():
+    envs.register(SWITCH_TASK)(SwitchLine)
+
+SWITCH_SKILLS = {
+    "left": {"skill": {"_target_": "skills.static.StaticIntent", "action": [-1.0]}},
+    "right": {"skill": {"_target_": "skills.static.StaticIntent", "action": [1.0]}},
+}
+
+
+def test_sac_meta_policy_learns_a_state_dependent_switch(tmp_path):
+    """Trained by the real Trainer with learner=sac, the Beta means put the right skill up left of 0 and the left
+    skill up right of it (a constant weighting cannot do both), and the evaluation return improves."""
+    cfg = RunConfig(
+        task=SWITCH_TASK, skills=SWITCH_SKILLS, learner="sac", seed=0, steps=5_000, num_envs=2, vector="sync",
+        eval_every=2_500, eval_episodes=10, progress=False, hidden=(32, 32),
+        sac=SACConfig(q_hidden=(64, 64), batch_size=64, learning_starts=200, gamma=0.9, learning_rate=1e-3),
+    )  # fmt: skip
+    Trainer(cfg, tmp_path).train()
+    evals = pd.read_csv(tmp_path / "eval.csv")
+    loaded = load_policy(tmp_path / "checkpoints" / "last.pt")
+    with torch.no_grad():
+        left_side = loaded.policy.distribution(torch.full((64, 1), -0.6)).mode().mean(0).numpy()
+        right_side = loaded.policy.distribution(torch.full((64, 1), 0.6)).mode().mean(0).numpy()
+    print("weights (left, right) at x=-0.6:", left_side, "at x=0.6:", right_side, list(evals["episode_reward"]))
+    assert left_side[1] - left_side[0] > 0.4  # push right when left of the goal
+    assert right_side[0] - right_side[1] > 0.4  # push left when right of it
+    assert evals["episode_reward"].iloc[-1] > evals["episode_reward"].iloc[0] + 1.0
+    train = pd.read_csv(tmp_path / "train.csv")
+    assert {"losses/q_loss", "losses/temperature", "losses/entropy"} <= set(train.columns)
+    assert train["losses/gradient_steps"].sum() > 0
