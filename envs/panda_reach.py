@@ -195,8 +195,9 @@ class PandaReachEnv(gym.Env[np.ndarray, np.ndarray]):
 
     def skill_state(self) -> dict[str, np.ndarray]:
         """Named quantities skills read: ``arm_qpos`` (7,) rad, ``arm_qvel`` (7,) rad/s, ``ee_pos`` (3,) m,
-        ``ee_quat`` (4,), ``target_pos`` (3,) m, ``target_quat`` (4,), ``qpos`` and ``qvel`` (9,),
-        ``target_behind_wall`` (1,): 1.0 for a target behind the wall, else 0.0."""
+        ``ee_quat`` (4,), ``target_pos`` (3,) m, ``target_quat`` (4,), ``target_distance`` (1,) m from the end
+        effector to the target, ``target_behind_wall`` (1,): 1.0 for a target behind the wall, else 0.0, ``qpos`` and
+        ``qvel`` (9,)."""
         ee_pos, ee_quat = self.ee_pose()
         return {
             "qpos": self.data.qpos.copy(),
@@ -207,6 +208,7 @@ class PandaReachEnv(gym.Env[np.ndarray, np.ndarray]):
             "ee_quat": ee_quat,
             "target_pos": self.target_pos.copy(),
             "target_quat": self.target_quat.copy(),
+            "target_distance": np.array([np.linalg.norm(self.target_pos - ee_pos)]),
             "target_behind_wall": np.array([float(self._behind_wall(self.target_pos))]),
         }
 

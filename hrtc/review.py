@@ -2,7 +2,9 @@
 
 ``load(path)`` reads a run directory's recording segments (or one ``.rrd``) back with rerun-sdk's reader;
 ``summarize`` gives, per evaluation episode, each skill's mean weight, its share of decisions as the dominant skill
-and its mean alpha + beta; ``plot_activations`` draws the weights over time per episode, with the return.
+and its mean alpha + beta; ``plot_activations`` draws, per episode, the weights over time with the dominant skill
+shaded, the task's key state quantity under them (``task.key_state``: the pole angle, the altitude...) and alpha +
+beta, each skill in its colour (:mod:`hrtc.logging.palette`, the same as in the viewer).
 """
 
 from __future__ import annotations
@@ -22,13 +24,16 @@ class Review:
     """A recording's evaluation episodes.
 
     ``episodes``: one row per episode (``episode``, ``return``, ``length``, ``global_step``, ``seed``); ``steps``: one
-    row per decision (``episode``, ``env_step``, ``weights`` (K,), ``alpha``/``beta`` (K,) or NaN); ``skill_names``.
+    row per decision (``episode``, ``env_step``, ``weights`` (K,), ``alpha``/``beta`` (K,) or None, ``key``: the
+    task's key state quantity after the decision, NaN if not recorded); ``skill_names``; ``key_state``: the key
+    state's name (None if the recording has none).
     """
 
     episodes: pd.DataFrame
     steps: pd.DataFrame
     skill_names: tuple[str, ...]
     paths: tuple[Path, ...]
+    key_state: str | None = None
 
 
 def recording_paths(path: str | Path) -> list[Path]:
@@ -68,6 +73,11 @@ def load(path: str | Path) -> Review:
         "alpha": _cells(steps, "/meta/alpha"),
         "beta": _cells(steps, "/meta/beta"),
     })  # fmt: skip
+    key_state, key = _key_state(paths)
+    if key is not None:
+        table = table.merge(key, on=["episode", "env_step"], how="left")
+    else:
+        table["key"] = np.nan
     episode_table = pd.DataFrame({"episode": episodes["episode"].astype(int).to_numpy()})
     for key in ("return", "length", "global_step", "seed"):
         column = episodes.get(f"/eval/episode/{key}")
@@ -79,7 +89,24 @@ def load(path: str | Path) -> Review:
     table = table[table["episode"].isin(episode_table["episode"])].sort_values(["episode", "env_step"])
     if not names:
         names = tuple(f"w{k}" for k in range(len(table["weights"].iloc[0])))
-    return Review(episode_table.reset_index(drop=True), table.reset_index(drop=True), names, tuple(paths))
+    return Review(episode_table.reset_index(drop=True), table.reset_index(drop=True), names, tuple(paths), key_state)
+
+
+def _key_state(paths: list[Path]) -> tuple[str | None, pd.DataFrame | None]:
+    """The recorded key state (``state/<name>``): its name and a table ``episode``, ``env_step``, ``key``."""
+    from hrtc.logging.rerun_sink import read_recording
+
+    frame = read_recording(paths, contents="/state/**", index="env_step")
+    columns = [c for c in frame.columns if c.startswith("/state/") and ":" not in c]
+    if frame.empty or not columns:
+        return None, None
+    frame = frame[frame[columns[0]].notna()]
+    key = pd.DataFrame({
+        "episode": frame["episode"].astype(int).to_numpy(),
+        "env_step": frame["env_step"].astype(int).to_numpy(),
+        "key": [float(v[0]) for v in frame[columns[0]]],
+    })  # fmt: skip
+    return columns[0].removeprefix("/state/"), key.drop_duplicates(["episode", "env_step"], keep="last")
 
 
 def _cells(frame: pd.DataFrame, column: str) -> list:
@@ -136,28 +163,72 @@ def pick_episodes(review: Review, max_panels: int = 6) -> list[int]:
     return sorted(chosen)
 
 
+def dominant_spans(weights: np.ndarray, x: np.ndarray) -> list[tuple[float, float, int]]:
+    """Runs of decisions with the same dominant skill (largest weight, ties to the first): ``(start, end, k)`` in the
+    units of ``x`` (T,), each run ending where the next begins. ``weights`` (T, K)."""
+    dominant = np.argmax(weights, axis=1)
+    change = np.flatnonzero(np.diff(dominant)) + 1
+    starts = np.concatenate([[0], change])
+    ends = np.concatenate([change, [len(dominant)]])
+    edges = np.concatenate([[x[0] - (x[1] - x[0] if len(x) > 1 else 1)], x])  # decision t acts over (x[t-1], x[t]]
+    return [(float(edges[a]), float(edges[b]), int(dominant[a])) for a, b in zip(starts, ends, strict=True)]
+
+
 def plot_activations(review: Review, path: str | Path, max_panels: int = 6) -> Path:
-    """``activations.png``: per chosen episode, each skill's weight against env steps, titled with its return."""
+    """``activations.png``: per chosen episode, titled with its return, three rows against env steps: each skill's
+    weight with the dominant skill shaded, the task's key state quantity (when recorded) and alpha + beta (Beta
+    policies), each skill in its :func:`~hrtc.logging.palette.skill_colors` colour."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from hrtc.logging.palette import mpl, skill_colors
+
+    colors = [mpl(c) for c in skill_colors(review.skill_names)]
     chosen = pick_episodes(review, max_panels)
-    fig, axes = plt.subplots(len(chosen), 1, figsize=(10, 2.2 * len(chosen) + 0.6), sharex=True, squeeze=False)
+    has_key = bool(review.steps["key"].notna().any())
+    has_beta = review.steps["alpha"].map(lambda a: a is not None).any()
+    rows = ["weights", *(["key"] if has_key else []), *(["confidence"] if has_beta else [])]
+    ratios = {"weights": 2.0, "key": 1.2, "confidence": 1.0}
+    fig, axes = plt.subplots(len(chosen) * len(rows), 1, sharex=True, squeeze=False,
+                             figsize=(10, 0.6 + len(chosen) * sum(ratios[r] for r in rows) * 1.05),
+                             gridspec_kw={"height_ratios": [ratios[r] for r in rows] * len(chosen)})  # fmt: skip
     info = review.episodes.set_index("episode")
-    for ax, episode in zip(axes[:, 0], chosen, strict=True):
+    for i, episode in enumerate(chosen):
+        panel = dict(zip(rows, axes[i * len(rows) : (i + 1) * len(rows), 0], strict=True))
         part = review.steps[review.steps["episode"] == episode]
         weights = np.stack(part["weights"].to_list())
-        x = part["env_step"].to_numpy() - part["env_step"].min()
+        x = part["env_step"].to_numpy() - _episode_start(review, episode)  # env steps into the episode
+        spans = dominant_spans(weights, x)
+        for name in rows:
+            if name == "confidence":
+                continue
+            for start, end, k in spans:
+                panel[name].axvspan(start, end, color=colors[k], alpha=0.13, lw=0)
+        ax = panel["weights"]
         for k, name in enumerate(review.skill_names):
-            ax.plot(x, weights[:, k], label=name, lw=1.2)
+            ax.plot(x, weights[:, k], label=name, lw=1.4, color=colors[k])
         row = info.loc[episode]
-        ax.set_title(f"episode {episode} (policy at step {row['global_step']:.0f}): return {row['return']:.1f}",
-                     fontsize=9, loc="left")  # fmt: skip
+        ax.set_title(f"episode {episode} (policy at step {row['global_step']:.0f}): return {row['return']:.1f}; "
+                     f"shading: the dominant skill", fontsize=9, loc="left")  # fmt: skip
         ax.set_ylim(-0.02, 1.02)
         ax.set_ylabel("weight")
-        ax.grid(alpha=0.3)
+        if has_key:
+            key = part["key"].to_numpy(dtype=np.float64)
+            if np.nanmax(np.abs(key)) <= np.pi + 1e-9:  # an angle wrapping at +-pi: break the line, don't draw a jump
+                key = np.where(np.concatenate([[False], np.abs(np.diff(key)) > np.pi]), np.nan, key)
+            panel["key"].plot(x, key, color="black", lw=1.2)
+            panel["key"].set_ylabel(review.key_state or "key state", fontsize=8)
+        if has_beta:
+            confidence = np.stack(part["alpha"].to_list()) + np.stack(part["beta"].to_list())
+            for k in range(len(review.skill_names)):
+                panel["confidence"].plot(x, confidence[:, k], color=colors[k], lw=1.1)
+            panel["confidence"].set_ylim(bottom=2.0)  # alpha, beta >= 1: a flat line at the floor is no confidence
+            panel["confidence"].set_ylabel("alpha + beta", fontsize=8)
+        for a in panel.values():
+            a.grid(alpha=0.3)
+            a.margins(x=0)
     axes[0, 0].legend(loc="upper right", ncol=len(review.skill_names), fontsize=8)
     axes[-1, 0].set_xlabel("env steps into the episode")
     fig.tight_layout()
@@ -166,3 +237,14 @@ def plot_activations(review: Review, path: str | Path, max_panels: int = 6) -> P
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def _episode_start(review: Review, episode: int) -> int:
+    """The env step at which ``episode`` began on the recording's ``env_step`` axis: the end of the previous one + 1
+    (episodes are laid end to end), or its first decision's step less one decision's length for the first."""
+    steps = review.steps
+    before = steps[steps["episode"] < episode]
+    if not before.empty and int(before["episode"].max()) == episode - 1:
+        return int(before["env_step"].max()) + 1
+    part = steps[steps["episode"] == episode]["env_step"].to_numpy()
+    return int(part[0] - (part[1] - part[0])) if len(part) > 1 else int(part[0]) - 1

@@ -428,7 +428,9 @@ class Trainer:
             task_action_dim = int(getattr(self.eval_env, "action_dim", space.shape[0]))
             names = self.skill_names or tuple(f"a{i}" for i in range(space.shape[0]))
             tree, paths = describe(self.eval_env, f"{cfg.task}: {cfg.algo}-{cfg.dist}")
-            self.recorder = RerunSink(self.run_dir, cfg.logger, names, task_action_dim, tree, resume, tree_paths=paths)
+            self.recorder = RerunSink(self.run_dir, cfg.logger, names, task_action_dim, tree, resume, tree_paths=paths,
+                                      state_source=self.eval_env.unwrapped.skill_state,
+                                      eval_episodes=cfg.eval_episodes)  # fmt: skip
             self.recorder.updates = self.update
             self.sinks.append(self.recorder)
             if cfg.logger.frames:

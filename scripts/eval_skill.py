@@ -89,9 +89,12 @@ def run(opts: dict) -> str:
             frame_every=int(opts["frame_every"]),
             frame_episodes=episodes,
             frame_evals_every=1,
+            action_names=tuple(task.get("action_names") or ()),
+            key_state=task.get("key_state"),
         )
         tree, paths = describe(env, f"{task['name']}: {label}")
-        recorder = RerunSink(out, cfg, names, int(env.action_dim), tree, tree_paths=paths)
+        recorder = RerunSink(out, cfg, names, int(env.action_dim), tree, tree_paths=paths,
+                             state_source=env.unwrapped.skill_state, eval_episodes=episodes)  # fmt: skip
         recorder.start_evaluation(0, last=True)
         render = frame_source(env, cfg.frame_size) if cfg.frames else None
     collector = TraceCollector(recorder)

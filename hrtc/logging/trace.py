@@ -21,20 +21,33 @@ class RecordingConfig:
     mode: ``off`` | ``save`` (``<run_dir>/recording.rrd``) | ``spawn`` (a viewer, and the file) | ``connect`` (a
     running viewer or server at ``url``, and the file).
     frames: camera frames of evaluation episodes, one every ``frame_every`` env steps, ``frame_size`` (height, width)
-    pixels, in the first ``frame_episodes`` episodes of every ``frame_evals_every``-th evaluation (and the last one).
-    Frames are the expensive part of a recording (about 16 ms each on this machine's software renderer).
+    pixels, in ``frame_episodes`` episodes of the ``frame_evals_every``-th, 2 ``frame_evals_every``-th...
+    evaluation and of the last one (not of the first, the untrained policy's at step 0).
+    Frames are the expensive part of a recording: a 240 x 320 MuJoCo frame takes about 37 ms of CPU on this
+    machine's software renderer (31 ms at 120 x 160), the rest of an evaluation's record about 0.35 ms a decision.
+    When the run knows how many episodes an evaluation has, the framed episodes are its last ones: the viewer opens at
+    the end of the recording, on the last episode of the last evaluation, and its camera shows that episode.
     train_sample_every: the weights, alpha and beta of the first training env are recorded every this many policy
     decisions (0: never).
+    action_names: the task's action components (``task.action_names``: ``cart_force``...), used for the blended
+    action and the proposals; empty: ``a0``, ``a1``...
+    key_state: the named quantity of the task's state (``task.key_state``, a key of ``env.unwrapped.skill_state()``
+    of size 1: ``pole_angle``, ``y``...) recorded per decision as ``state/<key_state>``; None: none.
+    window: env steps shown before the time cursor in the evaluation plots; None: the longest evaluation episode
+    recorded before the layout is written (after the first training update).
     """
 
     mode: str = "save"
     url: str | None = None
     frames: bool = True
-    frame_every: int = 10
-    frame_size: tuple[int, int] = (120, 160)
+    frame_every: int = 20
+    frame_size: tuple[int, int] = (240, 320)
     frame_episodes: int = 1
     frame_evals_every: int = 10
     train_sample_every: int = 25
+    action_names: tuple[str, ...] = ()
+    key_state: str | None = None
+    window: int | None = None
 
     MODES = ("off", "save", "spawn", "connect")
 
@@ -51,6 +64,10 @@ class RecordingConfig:
                 raise ConfigError(f"logger.{name} must be >= 0, got {getattr(self, name)}")
         if len(self.frame_size) != 2 or min(self.frame_size) < 8:
             raise ConfigError(f"logger.frame_size must be [height, width] >= 8 pixels, got {list(self.frame_size)}")
+        if self.window is not None and int(self.window) < 1:
+            raise ConfigError(f"logger.window must be >= 1 env step (or null), got {self.window}")
+        if len(set(self.action_names)) != len(self.action_names):
+            raise ConfigError(f"logger.action_names must be distinct, got {list(self.action_names)}")
         if self.mode == "connect" and not self.url:
             raise ConfigError("logger.mode=connect needs logger.url (e.g. rerun+http://127.0.0.1:9876/proxy)")
 
@@ -67,6 +84,7 @@ class RecordingConfig:
             raise ConfigError(f"unknown logger keys {sorted(unknown)}; valid: {sorted(names)}")
         if "frame_size" in cfg:
             cfg["frame_size"] = tuple(int(v) for v in cfg["frame_size"])
+        cfg["action_names"] = tuple(str(v) for v in cfg.get("action_names") or ())
         return cls(**cfg)
 
 
@@ -77,7 +95,9 @@ class EpisodeTrace:
     After the episode: ``weights`` (T, K), ``alpha``/``beta`` (T, K) (Beta policies; empty otherwise), ``proposals``
     (T, K, A) (HRTC), ``action`` (T, A) the action sent to the task, ``reward`` (T,) summed over the decision's env
     steps, ``env_step`` (T,) env steps into the episode after the decision, ``obs`` (T, obs_dim) as the policy saw
-    it, ``skill_info`` per skill name a dict of diagnostic name -> (T,) array; ``frames`` list of (env_step, image).
+    it, ``skill_info`` per skill name a dict of diagnostic name -> (T,) array; ``frames`` list of (env_step, image);
+    ``key`` (T,) the task's ``key_state`` quantity after each decision, read from ``state()`` (the task's
+    ``skill_state``) when both are given.
     """
 
     episode: int
@@ -85,6 +105,8 @@ class EpisodeTrace:
     skill_names: tuple[str, ...]
     frame_every: int = 0
     render: Callable[[], np.ndarray | None] | None = None
+    state: Callable[[], Mapping[str, np.ndarray]] | None = None
+    key_state: str | None = None
     weights: list = field(default_factory=list)
     alpha: list = field(default_factory=list)
     beta: list = field(default_factory=list)
@@ -93,6 +115,7 @@ class EpisodeTrace:
     reward: list = field(default_factory=list)
     env_step: list = field(default_factory=list)
     obs: list = field(default_factory=list)
+    key: list = field(default_factory=list)
     skill_info: dict[str, dict[str, list]] = field(default_factory=dict)
     frames: list[tuple[int, np.ndarray]] = field(default_factory=list)
     episode_return: float = float("nan")
@@ -113,6 +136,8 @@ class EpisodeTrace:
         self.action.append(np.asarray(info.get("action", env_action), dtype=np.float64))
         self.reward.append(float(reward))
         self.env_step.append(env_step)
+        if self.key_state is not None and self.state is not None:
+            self.key.append(key_value(self.state(), self.key_state))
         for name, diagnostics in (info.get("skills") or {}).items():
             store = self.skill_info.setdefault(name, {})
             for key, value in diagnostics.items():
@@ -125,8 +150,21 @@ class EpisodeTrace:
     def arrays(self) -> dict[str, np.ndarray]:
         """The per-decision lists as arrays (empty arrays where nothing was recorded)."""
         out = {name: np.asarray(getattr(self, name)) for name in
-               ("weights", "alpha", "beta", "proposals", "action", "reward", "env_step")}  # fmt: skip
+               ("weights", "alpha", "beta", "proposals", "action", "reward", "env_step", "key")}  # fmt: skip
         return out
+
+
+def key_value(state: Mapping[str, np.ndarray], key: str) -> float:
+    """The task's key state quantity ``key`` of a named state (``skill_state()``), a float; a clear error when the
+    task has no such quantity or it is not a single number."""
+    from hrtc.errors import ConfigError
+
+    if key not in state:
+        raise ConfigError(f"key_state {key!r} is not in the task's named state; it has {', '.join(sorted(state))}")
+    value = np.asarray(state[key], dtype=np.float64).reshape(-1)
+    if value.size != 1:
+        raise ConfigError(f"key_state {key!r} has {value.size} numbers; the recording plots one (declare a scalar)")
+    return float(value[0])
 
 
 class Recorder(Protocol):
