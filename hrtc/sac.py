@@ -210,7 +210,6 @@ class SACLearner:
     Args:
         policy: the actor-critic whose actor is trained (its critic V(s) is fitted to the soft value).
         cfg: the SAC settings.
-        num_envs: envs per vector step (decisions per ``observe``).
         gamma: the discount per decision (``cfg.gamma ** decision_every``).
         generator: draws the replay minibatches.
     """
@@ -218,8 +217,7 @@ class SACLearner:
     update_while_stepping = True
     columns = SAC_COLUMNS
 
-    def __init__(self, policy: nn.Module, cfg: SACConfig, num_envs: int, gamma: float,
-                 generator: torch.Generator) -> None:  # fmt: skip
+    def __init__(self, policy: nn.Module, cfg: SACConfig, gamma: float, generator: torch.Generator) -> None:
         import copy
 
         self.policy, self.cfg, self.gamma, self.generator = policy, cfg, gamma, generator
@@ -232,7 +230,6 @@ class SACLearner:
         self.temperature_optimizer = torch.optim.Adam([self.log_temperature], lr=cfg.learning_rate)
         self.target_entropy = cfg.target_entropy_per_weight * k
         self.buffer = ReplayBuffer(cfg.buffer_size, obs_dim, k)
-        self.num_envs = num_envs
         self.decisions, self.gradient_steps = 0, 0
         self._credit = 0.0  # gradient steps owed to the decisions observed
         self._since_row = 0  # decisions since the last train.csv row
@@ -250,7 +247,7 @@ class SACLearner:
         n = len(step.rewards)
         self.decisions += n
         self._since_row += n
-        if self.decisions >= self.cfg.learning_starts and len(self.buffer) >= min(self.cfg.batch_size, 2):
+        if self.decisions >= self.cfg.learning_starts:
             self._credit += n * self.cfg.updates_per_decision
 
     @property

@@ -210,7 +210,7 @@ def build_learner(cfg: RunConfig, policy: ActorCritic, steps_per_decision: int, 
     settings = learner_settings(cfg)
     gamma = settings.gamma**steps_per_decision
     if cfg.learner == "sac":
-        return SACLearner(policy, cfg.sac, cfg.num_envs, gamma, generator)
+        return SACLearner(policy, cfg.sac, gamma, generator)
     num_updates = -(-cfg.steps // (cfg.ppo.num_steps * cfg.num_envs * steps_per_decision))
     return PPOLearner(policy, cfg.ppo, cfg.num_envs, gamma, num_updates, generator)
 

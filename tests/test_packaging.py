@@ -81,7 +81,8 @@ def test_the_installed_wheel_builds_every_task_and_composes_every_skill_library(
                             text=True, timeout=600)  # fmt: skip
     assert result.returncode == 0, result.stderr[-3000:]
     lines = dict(line.split(" ", 1) for line in result.stdout.splitlines() if line.startswith(("built", "composed")))
-    assert lines["built"].split() == list(envs.names())
+    # Other test modules register tasks of their own (test_*) in this process: the package's are the rest.
+    assert lines["built"].split() == [n for n in envs.names() if not n.startswith("test_")]
     shipped = set(group_choices("task"))
     expected = [n for n in envs.names() if n in shipped and task_config(n).get("skills")]
     assert lines["composed"].split() == expected and "panda_reach" in expected

@@ -146,7 +146,7 @@ def test_sac_config_validation():
 def test_learner_takes_updates_per_decision_gradient_steps_after_learning_starts():
     policy = ActorCritic(2, 2, "beta", (8,))
     learner = SACLearner(policy, SACConfig(batch_size=4, learning_starts=8, updates_per_decision=0.5, q_hidden=(8,),
-                                           log_every=1000), 2, 0.9, torch.Generator().manual_seed(0))  # fmt: skip
+                                           log_every=1000), 0.9, torch.Generator().manual_seed(0))  # fmt: skip
     obs = np.zeros((2, 2), np.float32)
     step = Step(obs, np.full((2, 2), 0.5, np.float32), np.ones(2), obs, np.zeros(2, bool), np.zeros(2, bool))
     for _ in range(4):  # 8 decisions: learning starts with the 4th step
