@@ -62,11 +62,11 @@ def main() -> None:
     (out / "results.json").write_text(json.dumps({"episodes": args.episodes, "seeds": seeds, "results": results,
                                                   "runs": methods}, indent=1))  # fmt: skip
     names = list(next(iter(results.values())))
-    lines = [f"# cartpole_swingup on changed physics ({args.episodes} episodes per policy, seeds 1,500,000+)", "",
-             "Mean return (learned policies: the mean over their training seeds [min, max]); in parentheses the share of"
-             " its own nominal return kept. HRTC: seeds 1-3 of the 10-seed learner benchmark (50k env steps, last.pt);"
-             " PPO Beta on raw actions: one seed, 100k env steps. The skills keep their nominal model.", "", "| condition | " + " | ".join(names) + " |",
-             "|---|" + "---|" * len(names)]  # fmt: skip
+    note = ("Mean return (learned policies: the mean over their training seeds [min, max]); in parentheses the share "
+            "of its own nominal return kept. HRTC: seeds 1-3 of the 10-seed learner benchmark (50k env steps, "
+            "last.pt); PPO Beta on raw actions: one seed, 100k env steps. The skills keep their nominal model.")
+    lines = [f"# cartpole_swingup on changed physics ({args.episodes} episodes per policy, seeds 1,500,000+)", "", note,
+             "", "| condition | " + " | ".join(names) + " |", "|---|" + "---|" * len(names)]  # fmt: skip
     nominal = {k: np.mean(v) for k, v in results["nominal"].items()}
     for condition, row in results.items():
         cells = []
