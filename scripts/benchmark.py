@@ -218,27 +218,18 @@ def references(task: dict, results_path: Path, episodes: int) -> dict[str, list[
     seeds of seed 1, reused from ``results_path`` when it holds them for as many episodes."""
     import json
 
+    from hrtc.benchmark.runs import decision_every
     from hrtc.references import evaluate_rules, reference_rules
     from hrtc.trainer import eval_seeds, make_env
 
     stored = json.loads(results_path.read_text()).get("references", {}) if results_path.exists() else {}
     if stored and all(len(v) == episodes for v in stored.values()):
         return stored
-    algo_cfg = compose_task(task["name"])
     env = make_env(task["name"], "hrtc", task["skills"], env_kwargs=task.get("env_kwargs"),
-                   decision_every=int(algo_cfg["algo"]["decision_every"]))  # fmt: skip
+                   decision_every=decision_every(task["name"]))  # fmt: skip
     rules = reference_rules(env.skill_names, task.get("references"))
     print(f"references: {len(rules)} rules x {episodes} episodes", file=sys.stderr)
     return {k: v.tolist() for k, v in evaluate_rules(env, rules, eval_seeds(1, episodes)).items()}
-
-
-def compose_task(task: str) -> dict:
-    """The composed config of ``task=<task>`` (its decision rate and settings) as plain containers."""
-    from omegaconf import OmegaConf
-
-    from hrtc.cli import compose
-
-    return OmegaConf.to_container(compose([f"task={task}"]), resolve=True)  # type: ignore[return-value]
 
 
 if __name__ == "__main__":

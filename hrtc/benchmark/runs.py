@@ -337,16 +337,14 @@ def _sb3_run(spec: RunSpec) -> tuple[dict[str, list[float]], list[float]]:
     from hrtc.cli import task_config
 
     task = task_config(spec.task)
-    return sb3_train(spec, task, int(root_and_task_value(spec.task, "algo", "decision_every", 1)))
+    return sb3_train(spec, task, decision_every(spec.task))
 
 
-def root_and_task_value(task: str, block: str, key: str, default: Any) -> Any:
-    """``block.key`` as the task config sets it (over the root config's), e.g. the task's decision rate."""
-    from omegaconf import OmegaConf
+def decision_every(task: str) -> int:
+    """The meta-policy's decision rate (env steps per decision) of ``task=<task>`` as train.py composes it."""
+    from hrtc.cli import compose
 
-    text = (resources.files("hrtc.conf") / "task" / f"{task}.yaml").read_text()
-    value = OmegaConf.to_container(OmegaConf.create(text)).get(block, {}).get(key)  # type: ignore[union-attr]
-    return default if value is None else value
+    return int(compose([f"task={task}"]).algo.decision_every)
 
 
 def last_eval_step(run_dir: Path) -> int:
