@@ -205,8 +205,7 @@ def learner_settings(cfg: RunConfig) -> PPOConfig | SACConfig:
 
 
 def build_learner(cfg: RunConfig, policy: ActorCritic, steps_per_decision: int, generator: torch.Generator) -> Learner:
-    """The run's learner for ``policy``, with its discount per decision (``gamma ** steps_per_decision``) as
-    ``learner.gamma``."""
+    """The run's learner for ``policy``; it discounts per decision (``gamma ** steps_per_decision``)."""
     settings = learner_settings(cfg)
     gamma = settings.gamma**steps_per_decision
     if cfg.learner == "sac":
@@ -400,7 +399,6 @@ class Trainer:
         # One decision spans decision_every env steps: discount per decision accordingly.
         self.steps_per_decision = cfg.decision_every if cfg.algo == "hrtc" else 1
         self.learner = build_learner(cfg, self.policy, self.steps_per_decision, self.generator)
-        self.gamma = self.learner.gamma
         self.normalizer = ObsNormalizer((obs_dim,)) if learner_settings(cfg).normalize_obs else None
         self.global_step, self.update, self.episodes = 0, 0, 0
         self.best_eval = -np.inf
