@@ -515,7 +515,7 @@ class Trainer:
         if self.recorder is not None:
             self.recorder.start_evaluation(self.global_step, last)
         seeds = eval_seeds(self.cfg.seed, self.cfg.eval_episodes)
-        policy, normalizer = self.policy, self.normalizer
+        policy, normalizer = getattr(self.learner, "deployed", self.policy), self.normalizer
         returns = evaluate(policy, normalizer, self.eval_env, seeds, self.cfg.dist, self.recorder, self.render)
         mean = float(returns.mean())
         self._write("eval", {"episode_reward": mean, "episode_reward_std": float(returns.std()),

@@ -61,14 +61,14 @@ def diagnose(path: str, episodes: int) -> dict[str, float]:
             "alpha+beta (median)": float(np.median(conc)), "alpha+beta (90th pct)": float(np.percentile(conc, 90))}
 
 
-def soft_rules(episodes: int) -> None:
+def soft_rules(episodes: int, action_filter: str = "sum") -> None:
     """The switching rule with the active skill at ``hi`` and the inactive ones at ``lo`` (all, or only hold and
     tracker at 0)."""
     from hrtc.cli import task_config
     from hrtc.references import SwitchRule, evaluate_rules
 
     task = task_config("cartpole_swingup")
-    env = make_env("cartpole_swingup", "hrtc", task["skills"], decision_every=5)
+    env = make_env("cartpole_swingup", "hrtc", task["skills"], action_filter, decision_every=5)
     rules = {}
     for hi, lo in ((1.0, 0.0), (0.9, 0.1), (0.8, 0.2), (0.7, 0.3), (0.6, 0.4)):
         rest = {"tracker": lo, "hold": lo}
@@ -84,9 +84,10 @@ if __name__ == "__main__":
     parser.add_argument("checkpoints", nargs="*")
     parser.add_argument("--episodes", type=int, default=10)
     parser.add_argument("--soft-rules", action="store_true")
+    parser.add_argument("--action-filter", default="sum", choices=("sum", "convex"))
     args = parser.parse_args()
     if args.soft_rules:
-        soft_rules(args.episodes)
+        soft_rules(args.episodes, args.action_filter)
     for ckpt in args.checkpoints:
         stats = diagnose(ckpt, args.episodes)
         print(ckpt, " | ".join(f"{k} {v:.3g}" for k, v in stats.items()))
