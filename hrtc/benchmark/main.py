@@ -212,7 +212,7 @@ def check(args: dict[str, Any]) -> dict[str, Any]:
         "wall_minutes": cli.optional(cli.number(0.01)),
         "thresholds": thresholds,
         "compare": pairs,
-        "trace": cli.optional(algos),
+        "trace": cli.optional(lambda name, value: algos(name, [value])[0]),
         "notes": texts,
         "ray_address": cli.optional(text),
         "backend": cli.one_of(*BACKENDS),

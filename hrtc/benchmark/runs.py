@@ -162,12 +162,14 @@ class _EvalCollector:
         self.deadline = None if minutes is None else time.perf_counter() + 60.0 * minutes
 
     def write(self, stream: str, step: int, metrics: Mapping[str, float]) -> None:
-        if self.deadline is not None and time.perf_counter() > self.deadline:
-            raise KeyboardInterrupt("the wall-time budget is spent")  # the trainer saves a checkpoint and stops
         if stream == "train":
             self.sps.append(float(metrics.get("charts/SPS", float("nan"))))
-        if stream != "eval":
-            return
+        elif stream == "eval":
+            self._evaluation(step, metrics)
+        if self.deadline is not None and time.perf_counter() > self.deadline:
+            raise KeyboardInterrupt("the wall-time budget is spent")  # the trainer saves a checkpoint and stops
+
+    def _evaluation(self, step: int, metrics: Mapping[str, float]) -> None:
         self.curve["step"].append(int(step))
         self.curve["episode_reward"].append(float(metrics["episode_reward"]))
         self.curve["episode_reward_std"].append(float(metrics["episode_reward_std"]))
