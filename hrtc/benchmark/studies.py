@@ -148,7 +148,7 @@ def episodes_lines(by_algo: Mapping[str, Mapping[int, Any]], rule: SolveRule, me
              "Projected hours: the paper's episodes-to-solve x 1000 frames at the measured frames/s.", "",
              f"| run | episodes | frames | wall (min) | frames/s | last-10 mean | {heads} | paper: episodes to solve "
              f"| projected h to the paper's episodes | projected h to {cutoff:,} episodes |",
-             "|---" * (8 + 2 * len(windows)) + "|"]  # fmt: skip
+             "|---" * (9 + 2 * len(windows)) + "|"]  # fmt: skip
     plotted = {}
     for algo, runs in by_algo.items():
         for seed, r in runs.items():
@@ -163,9 +163,10 @@ def episodes_lines(by_algo: Mapping[str, Mapping[int, Any]], rule: SolveRule, me
                 best, at = best_window_mean(x, w), solved_at(x, w, rule.threshold)
                 cells += ["n/a" if best is None else f"{best:.0f}", "not reached" if at is None else f"episode {at}"]
             ok = fps and math.isfinite(fps)
+            last10 = f"{x[-10:].mean():.0f}" if len(x) >= 10 else "n/a"
             hours = [n * 1000 / fps / 3600 if ok else math.nan for n in (paper.get(algo), cutoff) if n is not None]
             lines.append(f"| {algo} seed {seed} | {len(x)} | {log['frames']:,} | {log['wall_seconds'] / 60:.1f} "
-                         f"| {fps:.0f} | {x[-10:].mean() if len(x) >= 10 else math.nan:.0f} | {' | '.join(cells)} "
+                         f"| {fps:.0f} | {last10} | {' | '.join(cells)} "
                          f"| {paper.get(algo, '—')} | {_join(hours[:-1] if algo in paper else [], 1) or '—'} "
                          f"| {hours[-1]:.1f} |")  # fmt: skip
     for name, (_, curve) in plotted.items():
