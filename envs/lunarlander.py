@@ -118,3 +118,13 @@ def lunarlander(time_limit: float | None = None, **kwargs: Any) -> gym.Env:
     """
     steps = MAX_EPISODE_STEPS if time_limit is None else max(1, round(float(time_limit) * FPS))
     return gym.wrappers.TimeLimit(LunarLanderTask(**kwargs), max_episode_steps=steps)
+
+
+class GymnasiumHeuristic:
+    """gymnasium's own landing heuristic (the controller the skills take apart) as a benchmark reference: not a rule
+    over the skills but a controller of the task itself (``acts_on_env``, see :mod:`hrtc.benchmark.metrics`)."""
+
+    acts_on_env = True
+
+    def act(self, env: gym.Env, obs: np.ndarray) -> np.ndarray:
+        return ll.heuristic(env.unwrapped, obs).astype(np.float32)

@@ -20,7 +20,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import sys
 import time
 from pathlib import Path
@@ -141,10 +140,9 @@ def write(result: dict, out: Path, command: str) -> None:
     out.mkdir(parents=True, exist_ok=True)
     (out / "speed.json").write_text(json.dumps(result, indent=1))
     (out / "command.txt").write_text(command + "\n")
-    (out / "machine.txt").write_text(
-        f"{platform.platform()}\npython {platform.python_version()}, cpus {os.cpu_count()}, shared with other jobs\n"
-        f"{time.strftime('%Y-%m-%d %H:%M:%S %Z')}\n"
-    )
+    from hrtc.benchmark.report import machine_info
+
+    (out / "machine.txt").write_text(machine_info())
     lines = [
         "# CarRacing: fast frames against gymnasium's, side by side",
         "",

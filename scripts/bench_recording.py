@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import platform
 import re
 import resource
 import subprocess
@@ -25,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
 
 
 def run(task: str, steps: int, logger: str, run_dir: Path) -> dict:
@@ -47,7 +47,7 @@ def main() -> None:
     parser.add_argument("--task", default="cartpole_swingup")
     parser.add_argument("--steps", type=int, default=50_000)
     parser.add_argument("--pairs", type=int, default=3)
-    parser.add_argument("--out", type=Path, default=ROOT / "benchmarks/results/recording_cost")
+    parser.add_argument("--out", type=Path, default=ROOT / "benchmarks/results/cartpole_swingup/recording_cost")
     parser.add_argument("--runs", type=Path, default=ROOT / "runs/bench_recording")
     args = parser.parse_args()
     pairs = []
@@ -81,10 +81,9 @@ def main() -> None:
               f"{summary['median_cpu_ratio']:.3f}; recording {size_mb:.1f} MB."]  # fmt: skip
     (args.out / "table.md").write_text("\n".join(lines) + "\n")
     (args.out / "command.txt").write_text(" ".join(["python", *sys.argv]) + "\n")
-    (args.out / "machine.txt").write_text(
-        f"{platform.platform()}; {platform.processor() or platform.machine()}; python {platform.python_version()}; "
-        f"cores {__import__('os').cpu_count()}; load average at the end {__import__('os').getloadavg()}\n"
-    )
+    from hrtc.benchmark.report import machine_info
+
+    (args.out / "machine.txt").write_text(machine_info())
     print("\n".join(lines))
 
 

@@ -6,4 +6,9 @@
   process pool; finished runs are cached and skipped.
 - :mod:`hrtc.benchmark.report`: solutions, collapses, robust statistics (IQM, bootstrap CIs), ``table.md`` and
   ``curves.png``.
+- :mod:`hrtc.benchmark.metrics`: metric plug-ins beyond the evaluation curve (final and best policies on seeds of
+  their own, success on unseen targets, training episodes for a wall-time budget) and the reference rules.
+- :mod:`hrtc.benchmark.studies`: the ``table.md`` sections a benchmark config asks for.
+- :mod:`hrtc.benchmark.main`: ``scripts/benchmark.py``: arguments over a benchmark config
+  (``hrtc/conf/benchmark/<name>.yaml``), checks, runs, report.
 """

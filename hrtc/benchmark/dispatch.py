@@ -23,7 +23,25 @@ from hrtc.errors import ConfigError
 
 BACKENDS = ("auto", "ray", "process")
 # The fields that make a stored result the same run (cpus and run_dir change where and how fast, not what).
-SAME_RUN = ("task", "algo", "seed", "steps", "eval_every", "eval_episodes", "solve_threshold", "solve_episodes")
+SAME_RUN = (
+    "task",
+    "algo",
+    "seed",
+    "steps",
+    "eval_every",
+    "eval_episodes",
+    "solve_threshold",
+    "solve_episodes",
+    "base",
+    "overrides",
+    "root_ppo",
+    "final_seed_base",
+    "final_best",
+    "metric",
+    "metric_args",
+    "wall_minutes",
+)
+CORE = SAME_RUN[:8]  # what a screened solve rule needs stored (results of older versions lack the later fields)
 
 
 def ray_available() -> bool:
@@ -63,8 +81,12 @@ def _lock_path(path: Path) -> Path:
 
 def is_same_run(result: dict[str, Any], spec: RunSpec) -> bool:
     """The stored result answers ``spec``: same settings; a screened solve rule must have been run as such."""
-    same = all(result.get(k) == getattr(spec, k) for k in SAME_RUN if k in result)
-    return same and (not spec.confirms or all(result.get(k) == getattr(spec, k) for k in SAME_RUN))
+
+    def plain(value: Any) -> Any:  # as JSON stores it (tuples become lists)
+        return json.loads(json.dumps(value))
+
+    same = all(result.get(k) == plain(getattr(spec, k)) for k in SAME_RUN if k in result)
+    return same and (not spec.confirms or all(result.get(k) == getattr(spec, k) for k in CORE))
 
 
 def resolve_backend(backend: str, ray_address: str | None = None) -> str:

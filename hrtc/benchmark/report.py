@@ -337,7 +337,7 @@ def write_report(results: Mapping[str, Any], out: Path, rule: SolveRule) -> str:
     budget = int(results["budget"])
     task = results["task"]
     final_n = int(results.get("final_episodes") or 0)
-    expected = len(results["seeds"]) * len(results.get("algos", outcomes))
+    expected = results.get("expected_runs") or len(results["seeds"]) * len(results.get("algos", outcomes))
     present = sum(len(o) for o in outcomes.values())
     lines = [
         f"# {task}: env steps and episodes until solution (the paper's Table 1)",
@@ -371,8 +371,8 @@ def write_report(results: Mapping[str, Any], out: Path, rule: SolveRule) -> str:
         "",
         f"| algorithm | last evaluation, median [min, max] | final policy over {final_n} episodes, median [min, max]"
         " | best evaluation, median | lowest evaluation after first solving, per seed | wall time per run, median |"
-        " wall time to solution, median (solved runs) | settings |",
-        "|---|---|---|---|---|---|---|---|",
+        " wall time to solution, median (solved runs) | train env steps/s, median | settings |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for algo, per_seed in outcomes.items():
         finals = [o.final for o in per_seed.values()]
@@ -382,21 +382,40 @@ def write_report(results: Mapping[str, Any], out: Path, rule: SolveRule) -> str:
         settings = next(r["settings"] for r in mine.values())
         policy_finals = [float(np.mean(r["final_returns"])) for r in mine.values() if r.get("final_returns")]
         lows = [_lowest_after_solve(mine[seed]["curve"], rule.threshold) for seed in sorted(mine)]
+        sps = [r["train_sps"] for r in mine.values() if r.get("train_sps") is not None]
         lines.append(
             f"| {LABELS.get(algo, algo)} | {np.median(finals):.0f} [{min(finals):.0f}, {max(finals):.0f}] "
             f"| {_median_range(policy_finals)} "
             f"| {np.median([o.best for o in per_seed.values()]):.0f} "
             f"| {', '.join('—' if v is None else f'{v:.0f}' for v in lows)} | {np.median(walls):.0f} s "
-            f"| {f'{np.median(solve_walls):.0f} s' if solve_walls else '—'} | {settings} |"
+            f"| {f'{np.median(solve_walls):.0f} s' if solve_walls else '—'} "
+            f"| {f'{np.median(sps):.0f}' if sps else '—'} | {settings} |"
         )
     lines += ["", "Wall times are from a shared, loaded machine (machine.txt): compare them only roughly."]
-    lines += reference_lines(results.get("references"))
+    lines += throughput_lines(runs, list(outcomes))
+    from hrtc.benchmark.studies import study_lines
+
+    lines += study_lines(results, rule, out)
+    base = results.get("final_seed_base")
+    where = "evaluation seeds" if base is None else f"seeds {base:,} + 1000 seed + k"
+    lines += reference_lines(results.get("references"), f"{where} of seed {results.get('reference_seed', 1)}")
+    lines += ["", "Notes:", *(f"- {note}" for note in results["notes"])] if results.get("notes") else []
     text = "\n".join(lines) + "\n"
     (out / "table.md").write_text(text)
     (out / "summary.json").write_text(json.dumps(summary(outcomes, rule), indent=1))
     plot_curves(runs, rule, out / "curves.png", title=f"{task}: median and interquartile band over seeds",
                 episodes=int(results.get("eval_episodes", rule.episodes)))  # fmt: skip
     return text
+
+
+def throughput_lines(runs: Mapping[str, Mapping[str, Any]], algos: Sequence[str]) -> list[str]:
+    """Each algorithm's training env steps/s (the median over its runs) relative to the first algorithm's."""
+    sps = {a: [r["train_sps"] for r in runs.values() if r["algo"] == a and r.get("train_sps")] for a in algos}
+    sps = {a: float(np.median(v)) for a, v in sps.items() if v}
+    if len(sps) < 2 or algos[0] not in sps:
+        return []
+    ratios = ", ".join(f"{LABELS.get(a, a)} {v / sps[algos[0]]:.2f}" for a, v in sps.items())
+    return ["", f"Training env steps/s relative to {LABELS.get(algos[0], algos[0])} (medians over runs): {ratios}."]
 
 
 def _median_range(values: list[float]) -> str:
@@ -410,13 +429,17 @@ def _lowest_after_solve(curve: Mapping[str, Any], threshold: float) -> float | N
     return None if first is None else float(min(values[first:]))
 
 
-def reference_lines(references: Mapping[str, list[float]] | None) -> list[str]:
+def reference_lines(references: Mapping[str, Any] | None, seeds: str = "evaluation seeds of seed 1") -> list[str]:
     """The references table: each rule over the task's skills (each skill alone, the untrained blend, declared hand
     rules), mean and std of its returns on the evaluation seeds."""
     if not references:
         return []
+    if isinstance(next(iter(references.values())), dict):  # the success metric's summaries
+        from hrtc.benchmark.studies import success_table
+
+        return ["", "## References over the same skills (no learning)", "", *success_table(references)]
     n = len(next(iter(references.values())))
-    lines = ["", f"## References over the same skills ({n} episodes each, evaluation seeds of seed 1)", "",
+    lines = ["", f"## References over the same skills ({n} episodes each, {seeds})", "",
              "| rule | mean return | std |", "|---|---|---|"]  # fmt: skip
     lines += [f"| {name} | {np.mean(v):.1f} | {np.std(v):.1f} |" for name, v in references.items()]
     return lines

@@ -13,9 +13,10 @@ The result dict is JSON-serialisable: it travels back from a Ray worker or a poo
 from __future__ import annotations
 
 import platform
+import shutil
 import time
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -62,7 +63,15 @@ CURVE_KEYS = ("step", "episode_reward", "episode_reward_std", "episodes", "wall_
 @dataclass(frozen=True)
 class RunSpec:
     """One (algorithm, seed) of a benchmark. ``run_dir`` receives the run's own files (CSVs, checkpoints) on the
-    machine that executes it; ``cpus`` is what the run may use (its Ray resource request)."""
+    machine that executes it; ``cpus`` is what the run may use (its Ray resource request).
+
+    A benchmark config may name variants of the built-in algorithms (``algo`` is then the variant's name and ``base``
+    the algorithm it runs): ``overrides`` are appended to the trainer's Hydra overrides (trainer algorithms) or
+    given to the stable-baselines3 constructor as ``key=value`` keyword arguments; ``root_ppo`` False keeps the
+    task's PPO block for PPO on raw actions. After training: ``final_episodes`` deterministic episodes of the final
+    policy (and of the best evaluated one with ``final_best``) on the seeds of ``final_seed_base`` (None: the
+    evaluation seeds), the ``metric`` plug-in (:mod:`hrtc.benchmark.metrics`) with ``metric_args``, ``export``
+    (a path: a copy of the run's best checkpoint), ``wall_minutes`` (stop training after so many minutes)."""
 
     task: str
     algo: str
@@ -75,10 +84,24 @@ class RunSpec:
     solve_threshold: float | None = None
     solve_episodes: int = 0
     final_episodes: int = 0  # episodes of a last evaluation of the final policy (0: none)
+    base: str = ""  # the built-in algorithm a variant runs ("": ``algo`` itself)
+    overrides: tuple[str, ...] = ()
+    root_ppo: bool = True
+    final_seed_base: int | None = None
+    final_best: bool = False
+    metric: str = "returns"
+    metric_args: Mapping[str, Any] = field(default_factory=dict)
+    export: str | None = None
+    wall_minutes: float | None = None
 
     def __post_init__(self) -> None:
-        if self.algo not in ALGORITHMS:
-            raise UnknownNameError("algorithm", self.algo, tuple(ALGORITHMS))
+        if self.builtin not in ALGORITHMS:
+            raise UnknownNameError("algorithm", self.builtin, tuple(ALGORITHMS))
+
+    @property
+    def builtin(self) -> str:
+        """The built-in algorithm (a key of :data:`ALGORITHMS`) this run trains."""
+        return self.base or self.algo
 
     @property
     def confirms(self) -> bool:
@@ -97,19 +120,32 @@ class RunSpec:
 
 def run(spec: RunSpec) -> dict[str, Any]:
     """Train ``spec.algo`` for ``spec.steps`` env steps with evaluations on the schedule; returns the result dict."""
-    family, _ = ALGORITHMS[spec.algo]
+    family, _ = ALGORITHMS[spec.builtin]
     Path(spec.run_dir).mkdir(parents=True, exist_ok=True)
     tic = time.perf_counter()
-    curve, final = _trainer_run(spec) if family == "trainer" else _sb3_run(spec)
+    extra = _trainer_run(spec) if family == "trainer" else _sb3_run(spec)
+    curve = extra.pop("curve")
+    settings = SETTINGS[spec.builtin]
+    if not spec.root_ppo and ALGORITHMS[spec.builtin][1][0] == "ppo":
+        settings = settings.split(":")[0] + ": the task config's PPO settings"
+    settings += f"; overrides {' '.join(spec.overrides)}" if spec.overrides else ""
     return {
         **asdict(spec),
         "env_steps": int(curve["step"][-1]),
         "curve": curve,
-        "final_returns": final,
+        **extra,
         "wall_seconds": time.perf_counter() - tic,
-        "settings": SETTINGS[spec.algo],
+        "settings": settings,
         "host": platform.node(),
     }
+
+
+def episode_seeds(base: int | None, seed: int, episodes: int) -> list[int]:
+    """``episodes`` seeds of run seed ``seed``: ``base + 1000 seed + k``; base None: the evaluation seeds
+    (:func:`hrtc.trainer.eval_seeds`). A base of 2,000,000 keeps them disjoint from training and evaluation."""
+    from hrtc.trainer import eval_seeds
+
+    return eval_seeds(seed, episodes) if base is None else [base + 1_000 * seed + k for k in range(episodes)]
 
 
 # --------------------------------------------------------------------------------------------------- our trainer
@@ -121,10 +157,19 @@ class _EvalCollector:
         self.spec = spec
         self.trainer: Any = None  # set once the Trainer exists
         self.curve: dict[str, list[Any]] = {k: [] for k in CURVE_KEYS}
+        self.sps: list[float] = []  # the training loop's env steps/s, per train.csv row
+        minutes = spec.wall_minutes
+        self.deadline = None if minutes is None else time.perf_counter() + 60.0 * minutes
 
     def write(self, stream: str, step: int, metrics: Mapping[str, float]) -> None:
-        if stream != "eval":
-            return
+        if stream == "train":
+            self.sps.append(float(metrics.get("charts/SPS", float("nan"))))
+        elif stream == "eval":
+            self._evaluation(step, metrics)
+        if self.deadline is not None and time.perf_counter() > self.deadline:
+            raise KeyboardInterrupt("the wall-time budget is spent")  # the trainer saves a checkpoint and stops
+
+    def _evaluation(self, step: int, metrics: Mapping[str, float]) -> None:
         self.curve["step"].append(int(step))
         self.curve["episode_reward"].append(float(metrics["episode_reward"]))
         self.curve["episode_reward_std"].append(float(metrics["episode_reward_std"]))
@@ -144,7 +189,7 @@ class _EvalCollector:
 
 def trainer_overrides(spec: RunSpec) -> list[str]:
     """The Hydra overrides that make ``spec`` a :class:`~hrtc.trainer.RunConfig` (what ``scripts/train.py`` takes)."""
-    algo, dist, learner = ALGORITHMS[spec.algo][1]
+    algo, dist, learner = ALGORITHMS[spec.builtin][1]
     overrides = [
         f"task={spec.task}", f"algo={algo}", f"dist={dist}", f"learner={learner}", f"seed={spec.seed}",
         f"steps={spec.steps}",
@@ -156,10 +201,12 @@ def trainer_overrides(spec: RunSpec) -> list[str]:
     root = root_config()
     if "logger" in root:
         overrides.append("logger.mode=off")  # a Rerun recording with camera frames would cost more than the run
-    if algo == "ppo":
+    if algo == "ppo" and spec.root_ppo:
         # A task's PPO block is tuned for HRTC; PPO on raw actions runs with the root config's settings.
         overrides += [f"ppo.{key}={_hydra_value(value)}" for key, value in root["ppo"].items()]
-    return overrides
+    if spec.metric == "episodes":  # every finished episode logged by the env itself (carracing's episode_log)
+        overrides.append(f"++task.env_kwargs.episode_log={Path(spec.run_dir).resolve() / 'episodes.csv'}")
+    return [*overrides, *spec.overrides]
 
 
 def root_config() -> dict[str, Any]:
@@ -178,7 +225,7 @@ def _hydra_value(value: Any) -> str:
     return str(value)
 
 
-def _trainer_run(spec: RunSpec) -> tuple[dict[str, list[float]], list[float]]:
+def _trainer_run(spec: RunSpec) -> dict[str, Any]:
     from hydra import compose, initialize_config_module
     from hydra.core.global_hydra import GlobalHydra
     from omegaconf import OmegaConf
@@ -191,19 +238,37 @@ def _trainer_run(spec: RunSpec) -> tuple[dict[str, list[float]], list[float]]:
     GlobalHydra.instance().clear()
     run_cfg = RunConfig.from_mapping(OmegaConf.to_container(cfg, resolve=True))  # type: ignore[arg-type]
     (Path(spec.run_dir) / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
+    (Path(spec.run_dir) / "episodes.csv").unlink(missing_ok=True)  # a restarted run logs its episodes afresh
     collector = _EvalCollector(spec)
     trainer = Trainer(run_cfg, spec.run_dir, sinks=[collector])
     collector.trainer = trainer
-    trainer.train()
-    final = collector._returns(final_seeds(spec)).tolist() if spec.final_episodes else []
-    return collector.curve, final
+    started = time.time()
+    try:
+        trainer.train()
+    except KeyboardInterrupt:
+        if collector.deadline is None or time.perf_counter() < collector.deadline:
+            raise  # a real Ctrl-C; a spent wall-time budget ends the run as finished
+    from hrtc.benchmark import metrics
+
+    best = Path(spec.run_dir) / "checkpoints" / "best.pt"
+    out: dict[str, Any] = {"curve": collector.curve, "train_sps": _median(collector.sps)}
+    out["final_returns"] = collector._returns(final_seeds(spec)).tolist() if spec.final_episodes else []
+    if spec.final_best and spec.final_episodes:
+        out["best_returns"] = metrics.checkpoint_returns(best, final_seeds(spec)).tolist()
+    if spec.export:
+        Path(spec.export).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(best, spec.export)
+    return {**out, **metrics.after_training(spec, started)}
+
+
+def _median(values: list[float]) -> float | None:
+    finite = [v for v in values if np.isfinite(v)]
+    return float(np.median(finite)) if finite else None
 
 
 def final_seeds(spec: RunSpec) -> list[int]:
-    """The final evaluation's episode seeds: the evaluation seeds, ``final_episodes`` of them."""
-    from hrtc.trainer import eval_seeds
-
-    return eval_seeds(spec.seed, spec.final_episodes)
+    """The final evaluation's episode seeds: ``final_episodes`` of :func:`episode_seeds` for the run's seed."""
+    return episode_seeds(spec.final_seed_base, spec.seed, spec.final_episodes)
 
 
 def confirm_solve(spec: RunSpec, curve: Mapping[str, list[Any]], returns_of: Any) -> float | None:
@@ -238,9 +303,11 @@ class EpisodeCounter(gym.Wrapper):
         return obs, reward, terminated, truncated, info
 
 
-def sb3_model(name: str, env: gym.Env, seed: int) -> Any:
-    """A stable-baselines3 model for benchmark algorithm ``name`` (``sb3_ppo``...) with the settings of SETTINGS."""
+def sb3_model(name: str, env: gym.Env, seed: int, overrides: tuple[str, ...] = ()) -> Any:
+    """A stable-baselines3 model for benchmark algorithm ``name`` (``sb3_ppo``...) with the settings of SETTINGS;
+    ``overrides`` (``key=value``, dotted keys for nested ones: ``policy_kwargs.net_arch=[256,256]``) replace them."""
     import stable_baselines3 as sb3
+    from omegaconf import OmegaConf
     from stable_baselines3.common.noise import NormalActionNoise
 
     cls_name = ALGORITHMS[name][1][0]
@@ -253,6 +320,13 @@ def sb3_model(name: str, env: gym.Env, seed: int) -> Any:
         dim = int(np.prod(env.action_space.shape))
         half_range = (env.action_space.high - env.action_space.low) / 2
         kwargs["action_noise"] = NormalActionNoise(np.zeros(dim), 0.1 * half_range)
+    if overrides:
+        given = OmegaConf.to_container(OmegaConf.from_dotlist(list(overrides)))
+        kwargs = {
+            **kwargs,
+            **given,
+            "policy_kwargs": {**kwargs.get("policy_kwargs", {}), **given.get("policy_kwargs", {})},
+        }  # type: ignore[union-attr]
     return getattr(sb3, cls_name)("MlpPolicy", env, seed=seed, device="cpu", verbose=0, **kwargs)
 
 
@@ -271,11 +345,11 @@ def sb3_evaluate(model: Any, env: gym.Env, seeds: list[int]) -> np.ndarray:
     return np.asarray(returns)
 
 
-def sb3_train(spec: RunSpec, task: Mapping[str, Any] | None = None,
-              decision_every: int = 1) -> tuple[dict[str, list[Any]], list[float]]:  # fmt: skip
+def sb3_train(spec: RunSpec, task: Mapping[str, Any] | None = None, decision_every: int = 1) -> dict[str, Any]:
     """Train stable-baselines3 algorithm ``spec.algo`` on ``spec.task`` (``task``: its config block, for the
     env_kwargs and, for a composed algorithm, the skills acting every ``decision_every`` env steps); returns its
-    evaluation curve (CURVE_KEYS) and the final evaluation's returns.
+    evaluation curve (CURVE_KEYS), the final evaluation's returns (and the best evaluated model's, kept as
+    ``best.zip``, with ``spec.final_best``) and its training env steps/s.
 
     ``learn`` runs in chunks of ``eval_every`` env steps; on-policy algorithms finish their last rollout, so an
     evaluation may come a little after the chunk's end (SB3 PPO: the next multiple of 2,048)."""
@@ -287,7 +361,7 @@ def sb3_train(spec: RunSpec, task: Mapping[str, Any] | None = None,
     task = dict(task or {})
     torch.set_num_threads(spec.cpus)
     Path(spec.run_dir).mkdir(parents=True, exist_ok=True)
-    composed = ALGORITHMS[spec.algo][1][1] == "composed"
+    composed = ALGORITHMS[spec.builtin][1][1] == "composed"
     per_action = decision_every if composed else 1  # env steps per agent step
 
     def build() -> gym.Env:
@@ -297,7 +371,8 @@ def sb3_train(spec: RunSpec, task: Mapping[str, Any] | None = None,
         return envs.make(spec.task, **dict(task.get("env_kwargs") or {}))
 
     env, eval_env = EpisodeCounter(build()), build()
-    model = sb3_model(spec.algo, env, spec.seed)
+    model = sb3_model(spec.builtin, env, spec.seed, spec.overrides)
+    best_path = Path(spec.run_dir) / "best.zip"
     seeds = eval_seeds(spec.seed, spec.eval_episodes)
     curve: dict[str, list[Any]] = {k: [] for k in (*CURVE_KEYS, "train_seconds")}
     tic, train_seconds = time.perf_counter(), 0.0
@@ -312,6 +387,8 @@ def sb3_train(spec: RunSpec, task: Mapping[str, Any] | None = None,
         curve["train_seconds"].append(train_seconds)  # in learn() only: the training throughput
         curve["solve_reward"].append(confirm_solve(spec, curve, lambda rest: sb3_evaluate(model, eval_env, rest)))
         _write_csv(Path(spec.run_dir) / "eval.csv", curve)  # a run's progress, as the trainer's eval.csv shows it
+        if spec.final_best and curve["episode_reward"][-1] >= max(curve["episode_reward"]):
+            model.save(best_path)
 
     record()
     while model.num_timesteps * per_action < spec.steps:
@@ -320,10 +397,14 @@ def sb3_train(spec: RunSpec, task: Mapping[str, Any] | None = None,
         model.learn(-(-min(spec.eval_every, remaining) // per_action), reset_num_timesteps=False)
         train_seconds += time.perf_counter() - t0
         record()
-    final = sb3_evaluate(model, eval_env, final_seeds(spec)).tolist() if spec.final_episodes else []
+    out: dict[str, Any] = {"curve": curve, "train_sps": curve["step"][-1] / max(train_seconds, 1e-9)}
+    out["final_returns"] = sb3_evaluate(model, eval_env, final_seeds(spec)).tolist() if spec.final_episodes else []
+    if spec.final_best and spec.final_episodes:
+        best = type(model).load(best_path, device="cpu")
+        out["best_returns"] = sb3_evaluate(best, eval_env, final_seeds(spec)).tolist()
     env.close()
     eval_env.close()
-    return curve, final
+    return out
 
 
 def _write_csv(path: Path, curve: Mapping[str, list[Any]]) -> None:
@@ -333,7 +414,7 @@ def _write_csv(path: Path, curve: Mapping[str, list[Any]]) -> None:
     path.write_text("\n".join(lines) + "\n")
 
 
-def _sb3_run(spec: RunSpec) -> tuple[dict[str, list[float]], list[float]]:
+def _sb3_run(spec: RunSpec) -> dict[str, Any]:
     from hrtc.cli import task_config
 
     task = task_config(spec.task)
