@@ -318,12 +318,12 @@ def _kind(path: Path) -> str:
 
 def build_env(task: str, algo: str, skills: Mapping[str, Any], action_filter: str = "sum",
               env_kwargs: Mapping[str, Any] | None = None, decision_every: int = 1, seed: int = 0) -> Any:  # fmt: skip
-    """:func:`hrtc.trainer.make_env`, reset once with ``seed`` (the skills' first proposals: a wrong action size is
+    """:func:`hrtc.environments.make_env`, reset once with ``seed`` (the skills' first proposals: a wrong action size is
     found now), with a task's refusal of its ``env_kwargs`` as :class:`ConfigError` (one line) instead of a
     ``TypeError`` from deep in its constructor. The caller closes it."""
     import envs
+    from hrtc.environments import make_env
     from hrtc.errors import HRTCError, UnknownNameError
-    from hrtc.trainer import make_env
 
     if task not in envs.names():
         raise UnknownNameError("task", task, envs.names())
@@ -353,8 +353,9 @@ def start_run(cfg: Any, run_dir: str | Path) -> Any:
     from omegaconf import OmegaConf
 
     from hrtc import runlock
+    from hrtc.config import RunConfig
     from hrtc.errors import HRTCError
-    from hrtc.trainer import RunConfig, Trainer
+    from hrtc.trainer import Trainer
 
     run_dir = Path(run_dir)
     try:
@@ -375,7 +376,7 @@ def start_run(cfg: Any, run_dir: str | Path) -> Any:
 
 def prepare_run(args: Sequence[str], config_name: str = "config") -> list[str]:
     """Everything ``scripts/train.py`` can check before Hydra writes into the run directory (``.hydra/``, the log):
-    the overrides and the values they make (:func:`check_overrides`, :class:`~hrtc.trainer.RunConfig`), the run
+    the overrides and the values they make (:func:`check_overrides`, :class:`~hrtc.config.RunConfig`), the run
     directory, the checkpoints that ``resume=true`` and ``init_from`` will load. Then takes the run directory's lock
     (a second process is refused here, before Hydra touches the directory) and returns ``args`` with
     ``hydra.run.dir`` pinned (the default's timestamp resolved once), for ``@hydra.main`` to read."""
@@ -384,8 +385,8 @@ def prepare_run(args: Sequence[str], config_name: str = "config") -> list[str]:
 
     from hrtc import runlock
     from hrtc.checkpoint import load_checkpoint
+    from hrtc.config import RunConfig
     from hrtc.errors import HRTCError
-    from hrtc.trainer import RunConfig
 
     args = list(args)
     if any(a.startswith("-") for a in args):  # --help, --cfg job, --multirun...: Hydra's own modes, no run here

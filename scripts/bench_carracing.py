@@ -102,7 +102,7 @@ def _episodes(run_dir: Path) -> pd.DataFrame:
 
 def summarise(name: str, run_dir: Path, seed: int, minutes: float) -> dict:
     """The run's training episodes that finished within ``minutes`` of its start, and the solve rules on them."""
-    from hrtc.trainer import eval_seeds
+    from hrtc.episodes import eval_seeds
 
     started = float((run_dir / "started.txt").read_text())
     log = _episodes(run_dir)

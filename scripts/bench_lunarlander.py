@@ -72,7 +72,9 @@ def checkpoint_returns(path: Path, seeds: list[int]) -> list[float]:
     """Deterministic returns of a trainer checkpoint (HRTC or PPO) on ``seeds``."""
     import torch
 
-    from hrtc.trainer import evaluate, load_policy, make_env
+    from hrtc.checkpoint import load_policy
+    from hrtc.environments import make_env
+    from hrtc.episodes import evaluate
 
     torch.set_num_threads(1)
     loaded = load_policy(path)
@@ -119,7 +121,8 @@ def train_run(name: str, overrides: list[str], run_dir: Path, seed: int, args: a
 # --------------------------------------------------------------------------------------------------- fixed blends
 def fixed_weights(weights: np.ndarray, seeds: list[int]) -> list[float]:
     """Returns of the composed task under constant skill weights (a skill alone, or a fixed blend)."""
-    from hrtc.trainer import Decision, make_env, run_episodes
+    from hrtc.environments import make_env
+    from hrtc.episodes import Decision, run_episodes
 
     cfg = _task_config()
     env = make_env(TASK, "hrtc", cfg["skills"], env_kwargs=cfg.get("env_kwargs"))
@@ -158,7 +161,7 @@ def sb3_run(algo: str, seed: int, args: argparse.Namespace, minutes: float | Non
     from stable_baselines3 import PPO, SAC
 
     import envs
-    from hrtc.trainer import eval_seeds
+    from hrtc.episodes import eval_seeds
 
     torch.set_num_threads(1)
     env, eval_env = envs.make(TASK), envs.make(TASK)

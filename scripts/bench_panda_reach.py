@@ -74,8 +74,10 @@ def train_run(algo: str, seed: int, steps: int, run_dir: Path) -> dict[str, Any]
 # --------------------------------------------------------------------------------------------------- evaluation
 def _deciders(method: str, checkpoint: str | None) -> tuple[Any, Callable[[np.ndarray, Any], np.ndarray], int]:
     """(env, decide(obs, env) -> env action, env steps per decision) for ``method``."""
+    from hrtc.checkpoint import load_policy
     from hrtc.cli import task_config
-    from hrtc.trainer import load_policy, make_env, to_env_action
+    from hrtc.environments import make_env
+    from hrtc.policy import to_action
 
     skills = task_config(TASK)["skills"]
     if checkpoint is not None:
@@ -93,7 +95,7 @@ def _deciders(method: str, checkpoint: str | None) -> tuple[Any, Callable[[np.nd
             x = normalizer(x, False) if normalizer is not None else x
             with torch.no_grad():
                 u = policy.distribution(torch.as_tensor(x)).mode().numpy()[0]
-            return to_env_action(u, env.action_space, meta["dist"])
+            return to_action(u, env.action_space.low, env.action_space.high, meta["dist"]).astype(np.float32)
 
         return env, decide, every
     if method == SCRIPTED:

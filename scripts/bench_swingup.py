@@ -29,7 +29,7 @@ TASK = "cartpole_swingup"
 def _task_config() -> dict:
     from omegaconf import OmegaConf
 
-    from hrtc.trainer import ROOT_CONF
+    from hrtc.config import ROOT_CONF
 
     return OmegaConf.to_container(OmegaConf.load(ROOT_CONF / "task" / f"{TASK}.yaml"))["task"]
 
@@ -68,7 +68,8 @@ def _steps_to(evals: pd.DataFrame, threshold: float) -> int | None:
 
 def fixed_weights(weights: np.ndarray, episodes: int, seed: int) -> list[float]:
     """Returns of the composed task under constant skill weights (a skill alone, or a fixed blend)."""
-    from hrtc.trainer import Decision, eval_seeds, make_env, run_episodes
+    from hrtc.environments import make_env
+    from hrtc.episodes import Decision, eval_seeds, run_episodes
 
     env = make_env(TASK, "hrtc", _task_config()["skills"])
     action = np.asarray(weights, dtype=np.float32)

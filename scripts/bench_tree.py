@@ -69,7 +69,9 @@ def train(run_dir: Path, config: str, overrides: list[str], init_from: Path | No
     RunConfig fields after composition. Returns its curve and timings."""
     from dataclasses import replace
 
-    from hrtc.trainer import RunConfig, Trainer, load_policy_weights
+    from hrtc.checkpoint import load_policy_weights
+    from hrtc.config import RunConfig
+    from hrtc.trainer import Trainer
 
     # No Rerun recording: its cost is not what this benchmark measures.
     cfg = RunConfig.from_mapping(compose(config, ["progress=false", "logger.mode=off", *overrides]))
@@ -212,7 +214,7 @@ def tree_trace(checkpoint: Path, seed: int = 1_000_000) -> pd.DataFrame:
     """One deterministic episode (the Beta mean) of a trained tree: every node's effective weight per decision."""
     import torch
 
-    from hrtc.trainer import make_env
+    from hrtc.environments import make_env
     from hrtc.tree import effective_weights
     from skills.learned import load_policy
 

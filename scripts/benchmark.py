@@ -219,8 +219,9 @@ def references(task: dict, results_path: Path, episodes: int) -> dict[str, list[
     import json
 
     from hrtc.benchmark.runs import decision_every
+    from hrtc.environments import make_env
+    from hrtc.episodes import eval_seeds
     from hrtc.references import evaluate_rules, reference_rules
-    from hrtc.trainer import eval_seeds, make_env
 
     stored = json.loads(results_path.read_text()).get("references", {}) if results_path.exists() else {}
     if stored and all(len(v) == episodes for v in stored.values()):

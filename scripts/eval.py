@@ -68,8 +68,9 @@ class Setup(NamedTuple):
 def prepare(opts: dict) -> Setup:
     """Everything that can refuse the input, before anything is written: the checkpoint, the task it is evaluated on
     (built, reset, and its sizes checked against the policy's), the output directory."""
+    from hrtc.checkpoint import load_policy
     from hrtc.cli import build_env, check_checkpoint_fits, output_path, task_config
-    from hrtc.trainer import eval_seeds, load_policy
+    from hrtc.episodes import eval_seeds
 
     path = Path(opts["checkpoint"])
     policy, normalizer, meta = load_policy(path)
@@ -105,6 +106,8 @@ def prepare(opts: dict) -> Setup:
 def run(opts: dict, setup: Setup) -> str:
     import numpy as np
 
+    from hrtc.environments import frame_source
+    from hrtc.episodes import eval_seeds, evaluate
     from hrtc.logging.trace import (
         RecordingConfig,
         TraceCollector,
@@ -113,7 +116,6 @@ def run(opts: dict, setup: Setup) -> str:
         skill_statistics,
         weight_summary,
     )
-    from hrtc.trainer import eval_seeds, evaluate, frame_source
 
     policy, normalizer, meta, env, task, env_kwargs, out = setup
     path = Path(opts["checkpoint"])

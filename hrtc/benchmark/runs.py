@@ -133,7 +133,7 @@ class _EvalCollector:
         self.curve["solve_reward"].append(confirm_solve(self.spec, self.curve, self._returns))
 
     def _returns(self, seeds: list[int]) -> np.ndarray:
-        from hrtc.trainer import evaluate
+        from hrtc.episodes import evaluate
 
         t = self.trainer
         return evaluate(t.policy, t.normalizer, t.eval_env, seeds, t.cfg.dist)
@@ -183,7 +183,8 @@ def _trainer_run(spec: RunSpec) -> tuple[dict[str, list[float]], list[float]]:
     from hydra.core.global_hydra import GlobalHydra
     from omegaconf import OmegaConf
 
-    from hrtc.trainer import RunConfig, Trainer
+    from hrtc.config import RunConfig
+    from hrtc.trainer import Trainer
 
     GlobalHydra.instance().clear()
     with initialize_config_module("hrtc.conf", version_base=None):
@@ -201,7 +202,7 @@ def _trainer_run(spec: RunSpec) -> tuple[dict[str, list[float]], list[float]]:
 
 def final_seeds(spec: RunSpec) -> list[int]:
     """The final evaluation's episode seeds: the evaluation seeds, ``final_episodes`` of them."""
-    from hrtc.trainer import eval_seeds
+    from hrtc.episodes import eval_seeds
 
     return eval_seeds(spec.seed, spec.final_episodes)
 
@@ -210,7 +211,7 @@ def confirm_solve(spec: RunSpec, curve: Mapping[str, list[Any]], returns_of: Any
     """The solve rule's mean over ``spec.solve_episodes`` episodes for the evaluation just appended to ``curve``:
     the evaluation's own mean when it already has that many episodes; computed (the remaining seeds) when it passes
     the screen and no earlier evaluation confirmed; else None."""
-    from hrtc.trainer import eval_seeds
+    from hrtc.episodes import eval_seeds
 
     if not spec.confirms:
         return curve["episode_reward"][-1]
@@ -282,7 +283,8 @@ def sb3_train(spec: RunSpec, task: Mapping[str, Any] | None = None,
     import torch
 
     import envs
-    from hrtc.trainer import eval_seeds, make_env
+    from hrtc.environments import make_env
+    from hrtc.episodes import eval_seeds
 
     task = dict(task or {})
     torch.set_num_threads(spec.cpus)
