@@ -125,17 +125,14 @@ def run(opts: dict, setup: Setup) -> str:
     if opts["logger"] != "off":
         from hrtc.cli import group_choices, task_config
         from hrtc.logging.rerun_sink import RerunSink
-        from hrtc.tree import describe
 
         task_cfg = task_config(task) if task in group_choices("task") else {}  # the task evaluated on
         cfg = RecordingConfig(mode=str(opts["logger"]), frames=bool(opts["frames"]),
                               frame_every=int(opts["frame_every"]), frame_episodes=int(opts["frame_episodes"]),
                               frame_evals_every=1, action_names=tuple(task_cfg.get("action_names") or ()),
                               key_state=task_cfg.get("key_state"))  # fmt: skip
-        tree, paths = describe(env, f"{task}: {meta['algo']}-{meta['dist']} from {path}")
-        task_action_dim = int(getattr(env, "action_dim", env.action_space.shape[0]))
-        recorder = RerunSink(out, cfg, names, task_action_dim, tree, tree_paths=paths,
-                             state_source=env.unwrapped.skill_state, eval_episodes=episodes)  # fmt: skip
+        title = f"{task}: {meta['algo']}-{meta['dist']} from {path}"
+        recorder = RerunSink.for_env(out, cfg, env, title, eval_episodes=episodes)
         recorder.start_evaluation(int(meta.get("global_step", 0)), last=True)
         render = frame_source(env, cfg.frame_size) if cfg.frames else None
     collector = TraceCollector(recorder)

@@ -77,7 +77,6 @@ def run(opts: dict) -> str:
         format_skill_statistics,
         skill_statistics,
     )
-    from hrtc.tree import describe
 
     env = build_env(task["name"], "hrtc", skills, "sum", task.get("env_kwargs"), 1, eval_seeds(seed, 1)[0])
     recorder, render = None, None
@@ -93,9 +92,7 @@ def run(opts: dict) -> str:
             action_names=tuple(task.get("action_names") or ()),
             key_state=task.get("key_state"),
         )
-        tree, paths = describe(env, f"{task['name']}: {label}")
-        recorder = RerunSink(out, cfg, names, int(env.action_dim), tree, tree_paths=paths,
-                             state_source=env.unwrapped.skill_state, eval_episodes=episodes)  # fmt: skip
+        recorder = RerunSink.for_env(out, cfg, env, f"{task['name']}: {label}", eval_episodes=episodes)
         recorder.start_evaluation(0, last=True)
         render = frame_source(env, cfg.frame_size) if cfg.frames else None
     collector = TraceCollector(recorder)
