@@ -20,11 +20,12 @@ from hrtc.policy import ActorCritic, to_action
 
 
 class Decision(NamedTuple):
-    """One decision of a fixed rule: its input ``obs`` (as the policy saw it), its output ``u`` (the skill weights
-    for HRTC), the action sent to the environment, and the Beta parameters when it has them."""
+    """One decision of a fixed rule: its input ``obs`` (as the policy saw it), its output ``weights`` (the skill
+    weights for HRTC; the raw sample for flat PPO), the action sent to the environment, and the Beta parameters when
+    it has them."""
 
     obs: np.ndarray
-    u: np.ndarray
+    weights: np.ndarray
     action: np.ndarray
     alpha: np.ndarray | None = None
     beta: np.ndarray | None = None
@@ -58,7 +59,8 @@ def run_episodes(
             total += float(reward)
             done = terminated or truncated
             if trace is not None:
-                trace.add(decision.obs, decision.u, decision.alpha, decision.beta, decision.action, float(reward), info)
+                d = decision
+                trace.add(d.obs, d.weights, d.alpha, d.beta, d.action, float(reward), info)
         returns.append(total)
         if trace is not None and recorder is not None:
             trace.episode_return = total
