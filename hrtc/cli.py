@@ -342,31 +342,44 @@ def build_env(task: str, algo: str, skills: Mapping[str, Any], action_filter: st
     return env
 
 
+def launch(cfg: Any, run_dir: str | Path, sinks: Sequence[Any] = (), resume: bool = False) -> Any:
+    """The one way a run starts, whoever composed its config (``scripts/train.py`` through Hydra, the benchmark with
+    :func:`compose`): the composed config ``cfg`` validated as a :class:`~hrtc.config.RunConfig`, the run's
+    :class:`~hrtc.trainer.Trainer` built in ``run_dir`` (``sinks`` get its rows; ``resume`` continues its last
+    checkpoint), and the resolved config written beside it as ``config.yaml``. Raises :class:`~hrtc.errors.HRTCError`.
+    """
+    from omegaconf import OmegaConf
+
+    from hrtc.config import RunConfig
+    from hrtc.trainer import Trainer
+
+    run_cfg = RunConfig.from_mapping(OmegaConf.to_container(cfg, resolve=True))  # type: ignore[arg-type]
+    trainer = Trainer(run_cfg, run_dir, sinks=sinks, resume=resume)
+    (Path(run_dir) / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
+    return trainer
+
+
 def start_run(cfg: Any, run_dir: str | Path) -> Any:
-    """Validate the composed config ``cfg`` and build the run's :class:`~hrtc.trainer.Trainer` in ``run_dir`` (its
-    environments and skills, a resumed checkpoint); any problem exits with one line.
+    """:func:`launch` for ``scripts/train.py``: any problem exits with one line.
 
     The run directory's lock (:mod:`hrtc.runlock`) is taken before anything is written and held until the process
-    ends: a second process on the same directory is refused, naming the first. Writes ``config.yaml`` once the
-    trainer is built; a run directory this process created is removed again when the trainer cannot be built.
+    ends: a second process on the same directory is refused, naming the first. A run directory this process created
+    is removed again when the trainer cannot be built.
     """
     from omegaconf import OmegaConf
 
     from hrtc import runlock
     from hrtc.config import RunConfig
     from hrtc.errors import HRTCError
-    from hrtc.trainer import Trainer
 
     run_dir = Path(run_dir)
     try:
-        run_cfg = RunConfig.from_mapping(OmegaConf.to_container(cfg, resolve=True))
+        RunConfig.from_mapping(OmegaConf.to_container(cfg, resolve=True))  # type: ignore[arg-type]
         lock = runlock.hold(run_dir)
     except HRTCError as error:
         fail(str(error))
     try:
-        trainer = Trainer(run_cfg, run_dir, resume=bool(cfg.get("resume", False)))
-        (run_dir / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
-        return trainer
+        return launch(cfg, run_dir, resume=bool(cfg.get("resume", False)))
     except HRTCError as error:
         runlock.release(run_dir)
         if lock.created:  # nothing of a run that never started is left behind

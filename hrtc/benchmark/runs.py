@@ -258,18 +258,14 @@ def sb3_model(name: str, env: gym.Env, seed: int) -> Any:
 
 
 def sb3_evaluate(model: Any, env: gym.Env, seeds: list[int]) -> np.ndarray:
-    """Returns of one deterministic episode per seed."""
-    returns = []
-    for seed in seeds:
-        obs, _ = env.reset(seed=int(seed))
-        total, done = 0.0, False
-        while not done:
-            action, _ = model.predict(obs, deterministic=True)
-            obs, reward, terminated, truncated, _ = env.step(action)
-            total += float(reward)
-            done = terminated or truncated
-        returns.append(total)
-    return np.asarray(returns)
+    """Returns of one deterministic episode per seed (the one episode loop: :func:`hrtc.episodes.run_episodes`)."""
+    from hrtc.episodes import Decision, run_episodes
+
+    def decide(obs: np.ndarray) -> Decision:
+        action, _ = model.predict(obs, deterministic=True)
+        return Decision(obs, action, action)
+
+    return run_episodes(env, decide, seeds)
 
 
 def sb3_train(spec: RunSpec, task: Mapping[str, Any] | None = None,
