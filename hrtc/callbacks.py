@@ -109,6 +109,17 @@ class SkillFaults(BaseCallback):
 
 
 # --------------------------------------------------------------------------------------------------- metrics
+# train.csv: these, with the learner's own columns after the first two and each skill's fault count at the end.
+TRAIN_COLUMNS = ("episodes", "train/episode_reward", "charts/SPS", "charts/rollout_SPS", "charts/update_seconds")
+EVAL_COLUMNS = ("episode_reward", "episode_reward_std", "episodes", "train_episodes", "wall_seconds")
+
+
+def csv_columns(learner_columns: Sequence[str], skill_names: Sequence[str]) -> dict[str, tuple[str, ...]]:
+    """The columns of ``train.csv`` and ``eval.csv`` (after ``step``) that :class:`MetricsLog` fills."""
+    faults = (f"faults/{name}" for name in skill_names)
+    return {"train": (*TRAIN_COLUMNS[:2], *learner_columns, *TRAIN_COLUMNS[2:], *faults), "eval": EVAL_COLUMNS}
+
+
 class MetricsLog(BaseCallback):
     """Rows of metrics to the sinks (``train.csv``, ``eval.csv``, a recording...): the learner's ``train.csv`` rows
     with the episodes, the mean return of the episodes ended since the last row, the throughput, the update time and

@@ -31,6 +31,7 @@ from hrtc.callbacks import (
     TerminateAsInterrupt,
     TrainingSamples,
     Transition,
+    csv_columns,
 )
 from hrtc.checkpoint import load_checkpoint, load_policy_weights, plain, rng_state, save_checkpoint, set_rng_state
 from hrtc.config import RunConfig
@@ -42,10 +43,6 @@ from hrtc.normalize import ObsNormalizer, RewardScaler, normalize_obs
 from hrtc.policy import build_policy, to_action
 
 log = logging.getLogger(__name__)
-
-# train.csv: these, with the learner's own columns after the first two and each skill's fault count at the end.
-TRAIN_COLUMNS = ("episodes", "train/episode_reward", "charts/SPS", "charts/rollout_SPS", "charts/update_seconds")
-EVAL_COLUMNS = ("episode_reward", "episode_reward_std", "episodes", "train_episodes", "wall_seconds")
 
 
 class Trainer:
@@ -92,20 +89,19 @@ class Trainer:
         self.callbacks = list(callbacks) if callbacks is not None else self.standard_callbacks(sinks, resume)
 
     def standard_callbacks(self, sinks: Sequence[Sink] = (), resume: bool = False) -> list[Callback]:
-        """The CSVs (continued from the checkpoint's step on ``resume``: rows of the work a crash lost are dropped)
-        and ``sinks``, a recording (``cfg.logger``), SIGTERM as Ctrl-C, fault counts, a progress bar, health checks,
-        evaluations and checkpoints, in that order."""
+        """In order: SIGTERM as Ctrl-C, the skills' fault counts, the metrics (to the CSVs, continued from the
+        checkpoint's step on ``resume`` with the rows of the work a crash lost dropped; to ``sinks``; to a recording
+        per ``cfg.logger``), the recording's training samples, a progress bar, health checks, evaluations, checkpoints.
+        """
         cfg, env = self.cfg, self.eval_env
-        columns = {"train": (*TRAIN_COLUMNS[:2], *self.learner.columns, *TRAIN_COLUMNS[2:],
-                             *(f"faults/{name}" for name in self.skill_names)), "eval": EVAL_COLUMNS}  # fmt: skip
+        columns = csv_columns(self.learner.columns, self.skill_names)
         sinks = [CsvSink(self.run_dir, columns, append=resume, keep_until=self.global_step if resume else None), *sinks]
         recorder, render = None, None
         if cfg.logger.mode != "off":
             from hrtc.logging.rerun_sink import RerunSink
 
             title = f"{cfg.task}: {cfg.algo}-{cfg.dist}"
-            recorder = RerunSink.for_env(self.run_dir, cfg.logger, env, title, resume, cfg.eval_episodes)
-            recorder.updates = self.update
+            recorder = RerunSink.for_env(self.run_dir, cfg.logger, env, title, resume, cfg.eval_episodes, self.update)
             sinks.append(recorder)
             render = frame_source(env, cfg.logger.frame_size) if cfg.logger.frames else None
         faults = SkillFaults(self.skill_names, cfg.num_envs)
