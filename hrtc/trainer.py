@@ -155,9 +155,11 @@ class Trainer:
             interrupted = True
             raise
         finally:
-            for callback in reversed(self.callbacks):
-                callback.on_end(self, interrupted)
-            vec.close()
+            try:
+                for callback in reversed(self.callbacks):
+                    callback.on_end(self, interrupted)
+            finally:  # Ctrl-C reaches the env workers too: an interrupted run stops them rather than asking them
+                vec.close(terminate=interrupted)
         return {"final_eval": self.last_eval, "best_eval": float(self.best_eval), "steps": self.global_step,
                 "wall_seconds": time.perf_counter() - self._start}  # fmt: skip
 
