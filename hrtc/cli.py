@@ -318,12 +318,12 @@ def _kind(path: Path) -> str:
 
 def build_env(task: str, algo: str, skills: Mapping[str, Any], action_filter: str = "sum",
               env_kwargs: Mapping[str, Any] | None = None, decision_every: int = 1, seed: int = 0) -> Any:  # fmt: skip
-    """:func:`hrtc.trainer.make_env`, reset once with ``seed`` (the skills' first proposals: a wrong action size is
+    """:func:`hrtc.environments.make_env`, reset once with ``seed`` (the skills' first proposals: a wrong action size is
     found now), with a task's refusal of its ``env_kwargs`` as :class:`ConfigError` (one line) instead of a
     ``TypeError`` from deep in its constructor. The caller closes it."""
     import envs
+    from hrtc.environments import make_env
     from hrtc.errors import HRTCError, UnknownNameError
-    from hrtc.trainer import make_env
 
     if task not in envs.names():
         raise UnknownNameError("task", task, envs.names())
@@ -342,30 +342,44 @@ def build_env(task: str, algo: str, skills: Mapping[str, Any], action_filter: st
     return env
 
 
+def launch(cfg: Any, run_dir: str | Path, sinks: Sequence[Any] = (), resume: bool = False) -> Any:
+    """The one way a run starts, whoever composed its config (``scripts/train.py`` through Hydra, the benchmark with
+    :func:`compose`): the composed config ``cfg`` validated as a :class:`~hrtc.config.RunConfig`, the run's
+    :class:`~hrtc.trainer.Trainer` built in ``run_dir`` (``sinks`` get its rows; ``resume`` continues its last
+    checkpoint), and the resolved config written beside it as ``config.yaml``. Raises :class:`~hrtc.errors.HRTCError`.
+    """
+    from omegaconf import OmegaConf
+
+    from hrtc.config import RunConfig
+    from hrtc.trainer import Trainer
+
+    run_cfg = RunConfig.from_mapping(OmegaConf.to_container(cfg, resolve=True))  # type: ignore[arg-type]
+    trainer = Trainer(run_cfg, run_dir, sinks=sinks, resume=resume)
+    (Path(run_dir) / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
+    return trainer
+
+
 def start_run(cfg: Any, run_dir: str | Path) -> Any:
-    """Validate the composed config ``cfg`` and build the run's :class:`~hrtc.trainer.Trainer` in ``run_dir`` (its
-    environments and skills, a resumed checkpoint); any problem exits with one line.
+    """:func:`launch` for ``scripts/train.py``: any problem exits with one line.
 
     The run directory's lock (:mod:`hrtc.runlock`) is taken before anything is written and held until the process
-    ends: a second process on the same directory is refused, naming the first. Writes ``config.yaml`` once the
-    trainer is built; a run directory this process created is removed again when the trainer cannot be built.
+    ends: a second process on the same directory is refused, naming the first. A run directory this process created
+    is removed again when the trainer cannot be built.
     """
     from omegaconf import OmegaConf
 
     from hrtc import runlock
+    from hrtc.config import RunConfig
     from hrtc.errors import HRTCError
-    from hrtc.trainer import RunConfig, Trainer
 
     run_dir = Path(run_dir)
     try:
-        run_cfg = RunConfig.from_mapping(OmegaConf.to_container(cfg, resolve=True))
+        RunConfig.from_mapping(OmegaConf.to_container(cfg, resolve=True))  # type: ignore[arg-type]
         lock = runlock.hold(run_dir)
     except HRTCError as error:
         fail(str(error))
     try:
-        trainer = Trainer(run_cfg, run_dir, resume=bool(cfg.get("resume", False)))
-        (run_dir / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
-        return trainer
+        return launch(cfg, run_dir, resume=bool(cfg.get("resume", False)))
     except HRTCError as error:
         runlock.release(run_dir)
         if lock.created:  # nothing of a run that never started is left behind
@@ -375,7 +389,7 @@ def start_run(cfg: Any, run_dir: str | Path) -> Any:
 
 def prepare_run(args: Sequence[str], config_name: str = "config") -> list[str]:
     """Everything ``scripts/train.py`` can check before Hydra writes into the run directory (``.hydra/``, the log):
-    the overrides and the values they make (:func:`check_overrides`, :class:`~hrtc.trainer.RunConfig`), the run
+    the overrides and the values they make (:func:`check_overrides`, :class:`~hrtc.config.RunConfig`), the run
     directory, the checkpoints that ``resume=true`` and ``init_from`` will load. Then takes the run directory's lock
     (a second process is refused here, before Hydra touches the directory) and returns ``args`` with
     ``hydra.run.dir`` pinned (the default's timestamp resolved once), for ``@hydra.main`` to read."""
@@ -384,8 +398,8 @@ def prepare_run(args: Sequence[str], config_name: str = "config") -> list[str]:
 
     from hrtc import runlock
     from hrtc.checkpoint import load_checkpoint
+    from hrtc.config import RunConfig
     from hrtc.errors import HRTCError
-    from hrtc.trainer import RunConfig
 
     args = list(args)
     if any(a.startswith("-") for a in args):  # --help, --cfg job, --multirun...: Hydra's own modes, no run here

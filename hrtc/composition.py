@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal, Protocol
 
@@ -216,6 +216,52 @@ def build_library(skills_cfg: Mapping[str, Mapping[str, Any]]) -> SkillLibrary:
     return SkillLibrary(slots)
 
 
+# --------------------------------------------------------------------------------------------------- composition
+class Composition:
+    """HRTC's composition, written once: at every env step each skill proposes for the task's named state (through
+    its state filter, at its own rate), and the action filter blends the proposals with the meta-policy's weights,
+    which are held for ``decision_every`` env steps (a new decision at steps 0, k, 2k... of an episode).
+
+    Used by :class:`ComposedEnv` (a task whose action is the weights) and by a learned meta-policy acting as a skill
+    of another task (``skills.learned.PolicySkill``, the paper's recursion).
+    """
+
+    def __init__(self, library: SkillLibrary, action_filter: ActionFilter, decision_every: int = 1) -> None:
+        if int(decision_every) < 1:
+            raise ConfigError(f"decision_every must be >= 1, got {decision_every}")
+        self.library, self.action_filter, self.decision_every = library, action_filter, int(decision_every)
+        self.action_dim = int(np.asarray(action_filter.low).shape[0])
+        self.step = 0  # env steps since the episode began
+        self.weights = np.zeros(len(library))  # the held weights, clipped to [0, 1]
+        self._proposed: tuple[int, np.ndarray, list] | None = None
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return self.library.names
+
+    def reset(self, rng: np.random.Generator) -> None:
+        self.library.reset(rng)
+        self.step, self.weights, self._proposed = 0, np.zeros(len(self.library)), None
+
+    def propose(self, state: Callable[[], Mapping[str, np.ndarray]]) -> tuple[np.ndarray, list]:
+        """Every skill's proposal (K, A) and diagnostics for this step's ``state()``, asked once per step."""
+        if self._proposed is None or self._proposed[0] != self.step:
+            self._proposed = (self.step, *self.library.propose(state(), self.step, self.action_dim))
+        return self._proposed[1], self._proposed[2]
+
+    def act(self, state: Callable[[], Mapping[str, np.ndarray]],
+            decide: Callable[[], np.ndarray]) -> tuple[np.ndarray, np.ndarray, list]:  # fmt: skip
+        """This step's action: new weights from ``decide()`` when a decision is due (else the held ones) blended
+        with the skills' proposals for ``state()``. Returns (action (A,), proposals (K, A), diagnostics); the step
+        advances."""
+        if self.step % self.decision_every == 0:
+            self.weights = np.clip(np.asarray(decide(), dtype=np.float64), 0.0, 1.0)
+        proposals, infos = self.propose(state)
+        action = self.action_filter(self.weights, proposals)
+        self.step += 1
+        return action, proposals, infos
+
+
 # --------------------------------------------------------------------------------------------------- composed env
 class ComposedEnv(gym.Wrapper):
     """A task whose action is the skill-weight vector ``w`` in [0, 1]^K.
@@ -245,30 +291,20 @@ class ComposedEnv(gym.Wrapper):
     ) -> None:
         super().__init__(env)
         self.diagnostics = bool(diagnostics)
-        if int(decision_every) < 1:
-            raise ConfigError(f"decision_every must be >= 1, got {decision_every}")
-        self.decision_every = int(decision_every)
         space = env.action_space
         if not isinstance(space, gym.spaces.Box) or len(space.shape) != 1:
             raise ConfigError(f"HRTC composes 1-D Box actions; this task's action space is {space}")
         if not hasattr(env.unwrapped, "skill_state"):
             raise ConfigError(f"task {env.unwrapped} exposes no skill_state(): skills cannot read it")
-        self.library = library
-        self.action_filter = ActionFilter(space.low.astype(np.float64), space.high.astype(np.float64), mode)
+        action_filter = ActionFilter(space.low.astype(np.float64), space.high.astype(np.float64), mode)
+        self.composition = Composition(library, action_filter, decision_every)
+        self.library, self.action_filter, self.decision_every = library, action_filter, self.composition.decision_every
         self.action_dim = int(space.shape[0])
         self.action_space = gym.spaces.Box(0.0, 1.0, (len(library),), np.float32)
-        self._step = 0
-        self._proposals = np.zeros((len(library), self.action_dim))
-        self._skill_info: list = []
 
     @property
     def skill_names(self) -> tuple[str, ...]:
         return self.library.names
-
-    def _propose(self) -> None:
-        self._proposals, self._skill_info = self.library.propose(
-            self.env.unwrapped.skill_state(), self._step, self.action_dim
-        )
 
     def fault_counts(self) -> dict[str, np.ndarray]:
         """Lifetime ``skill_faults`` and ``skill_calls`` per skill, (K,) each."""
@@ -278,33 +314,30 @@ class ComposedEnv(gym.Wrapper):
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         obs, info = self.env.reset(seed=seed, options=options)
-        self.library.reset(np.random.default_rng(seed) if seed is not None else self.env.np_random)
-        self._step = 0
-        self._propose()
+        self.composition.reset(np.random.default_rng(seed) if seed is not None else self.env.np_random)
+        self.composition.propose(self.env.unwrapped.skill_state)  # now: a misfit skill fails at reset
         return obs, ({**info, **self.fault_counts()} if self.diagnostics else info)
 
     def step(self, weights: np.ndarray):
         weights = np.asarray(weights, dtype=np.float64).reshape(-1)
         if weights.shape != (len(self.library),):
             raise ShapeError(f"expected {len(self.library)} skill weights {self.library.names}, got {weights.shape}")
-        total = 0.0
+        total, state = 0.0, self.env.unwrapped.skill_state
         faulted = np.zeros(len(self.library))  # a skill's fault at any env step of this decision is reported
         for _ in range(self.decision_every):
-            proposals, skill_info = self._proposals, self._skill_info
+            action, proposals, skill_info = self.composition.act(state, lambda: weights)
             faulted = np.maximum(faulted, [i.get("fault", 0.0) for i in skill_info])
-            action = self.action_filter(weights, proposals)
             obs, reward, terminated, truncated, info = self.env.step(action.astype(np.float32))
             total += float(reward)
-            self._step += 1
             if terminated or truncated:
                 break
-            self._propose()
+            self.composition.propose(state)  # the next step's proposals now: the fault counts below include them
         keep = (lambda key: True) if self.diagnostics else (lambda key: not key.endswith(TIMING_SUFFIX))
         info.update(
-            weights=np.clip(weights, 0.0, 1.0),
+            weights=self.composition.weights.copy(),
             proposals=proposals,
             action=action,
-            env_steps=self._step,
+            env_steps=self.composition.step,
             skills={
                 name: {**{k: v for k, v in i.items() if keep(k)}, "fault": float(f)}
                 for name, i, f in zip(self.library.names, skill_info, faulted, strict=True)

@@ -60,3 +60,17 @@ class Learner(Protocol):
 
     def state_dict(self) -> dict[str, Any]: ...
     def load_state_dict(self, state: dict[str, Any]) -> None: ...
+
+
+def build_learner(name: str, settings: Any, policy: Any, num_envs: int, total_steps: int, steps_per_decision: int,
+                  generator: Any) -> Learner:  # fmt: skip
+    """Learner ``name`` (``ppo`` or ``sac``) with its ``settings`` block for ``policy``, on ``num_envs`` envs for a
+    run of ``total_steps`` env steps; it discounts per decision (``gamma ** steps_per_decision``)."""
+    from hrtc.ppo import PPOLearner
+    from hrtc.sac import SACLearner
+
+    gamma = settings.gamma**steps_per_decision
+    if name == "sac":
+        return SACLearner(policy, settings, gamma, generator)
+    num_updates = -(-total_steps // (settings.num_steps * num_envs * steps_per_decision))
+    return PPOLearner(policy, settings, num_envs, gamma, num_updates, generator)

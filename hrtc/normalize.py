@@ -61,3 +61,8 @@ class RewardScaler:
     def scale(self) -> float:
         """The divisor currently applied to rewards."""
         return float(np.sqrt(self.rms.var + self.epsilon))
+
+
+def normalize_obs(normalizer: ObsNormalizer | None, obs: np.ndarray, update: bool = False) -> np.ndarray:
+    """``obs`` (batch, obs_dim) as the policy sees it: normalised when the run normalises, float32 always."""
+    return normalizer(obs, update) if normalizer is not None else obs.astype(np.float32)

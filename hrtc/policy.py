@@ -6,12 +6,15 @@ action); only ``out_dim`` and the consumer of the sample differ, so both are com
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
+from typing import Any
 
+import numpy as np
 import torch
 from torch import nn
 
 from hrtc.distributions import BetaDistribution, NormalDistribution, make_head
+from hrtc.encoders import build_encoder
 
 
 def mlp(in_dim: int, hidden: Sequence[int], activation: type[nn.Module] = nn.Tanh) -> nn.Sequential:
@@ -96,3 +99,25 @@ class ActorCritic(nn.Module):
         features = self.encoder(obs)
         self._features_cache = (key, obs.detach(), features)
         return features
+
+
+def build_policy(obs_dim: int, low: np.ndarray, high: np.ndarray, dist: str, hidden: Sequence[int],
+                 beta_init_bias: float = 0.0, encoder: Mapping[str, Any] | None = None) -> ActorCritic:  # fmt: skip
+    """The meta-policy and master critic for observations of ``obs_dim`` values and samples bounded by ``low`` and
+    ``high`` (one per skill weight for HRTC, per action for PPO). A Normal head starts at the centre of the bounds
+    with a standard deviation of a quarter of their range; ``encoder`` is a spec for :func:`~hrtc.encoders.
+    build_encoder` (pixel tasks) or None."""
+    low, high = np.asarray(low), np.asarray(high)
+    centre = float(np.mean((low + high) / 2))
+    log_std = float(np.log(np.mean(high - low) / 4))
+    trunk = build_encoder(encoder, obs_dim) if encoder is not None else None
+    return ActorCritic(obs_dim, int(low.shape[0]), dist, hidden, centre, log_std, beta_init_bias, encoder=trunk)
+
+
+def to_action(u: np.ndarray, low: np.ndarray, high: np.ndarray, dist: str) -> np.ndarray:
+    """A sample (or the mode) ``u`` of the meta-policy's distribution as the action it stands for: Beta samples in
+    (0, 1) affinely onto ``[low, high]``, Normal samples clipped to it (in the inputs' dtype). For HRTC the bounds
+    are [0, 1]^K, so the weights are ``u``; a learned PPO skill maps its mode onto its task's action bounds."""
+    if dist == "beta":
+        return low + (high - low) * u
+    return np.clip(u, low, high)

@@ -10,7 +10,7 @@ blends), each built with ``_target_`` like a skill::
                        above: {swingup: 1.0}, below: {balance: 1.0}}
 
 Rules act at the meta-policy's decision rate, on the composed env, and are evaluated by the same episode loop as
-the learners (:func:`hrtc.trainer.run_episodes`), on the same evaluation seeds.
+the learners (:func:`hrtc.episodes.run_episodes`), on the same evaluation seeds.
 """
 
 from __future__ import annotations
@@ -84,8 +84,8 @@ def reference_rules(skill_names: Sequence[str], declared: Mapping[str, Any] | No
 
 
 def rule_decider(env: Any, rule: WeightRule) -> Callable[[np.ndarray], Any]:
-    """A ``decide(obs)`` for :func:`hrtc.trainer.run_episodes` acting with ``rule`` on the composed ``env``."""
-    from hrtc.trainer import Decision
+    """A ``decide(obs)`` for :func:`hrtc.episodes.run_episodes` acting with ``rule`` on the composed ``env``."""
+    from hrtc.episodes import Decision
 
     names = tuple(env.skill_names)
     base = env.unwrapped
@@ -101,6 +101,6 @@ def rule_decider(env: Any, rule: WeightRule) -> Callable[[np.ndarray], Any]:
 
 def evaluate_rules(env: Any, rules: Mapping[str, WeightRule], seeds: Sequence[int]) -> dict[str, np.ndarray]:
     """Returns of one episode per seed for every rule, on the composed ``env``."""
-    from hrtc.trainer import run_episodes
+    from hrtc.episodes import run_episodes
 
     return {name: run_episodes(env, rule_decider(env, rule), seeds) for name, rule in rules.items()}

@@ -42,8 +42,6 @@ class SACConfig:
     init_temperature: float = 0.1
     log_every: int = 250  # decisions between rows of train.csv
     normalize_obs: bool = False  # a replay buffer holds old samples: no drifting normaliser by default
-    critic_layer_norm: bool = False  # LayerNorm after each hidden layer of the critics
-    policy_average: float = 0.0  # Polyak rate of an averaged copy of the meta-policy that is evaluated (0: off)
 
     def __post_init__(self) -> None:
         for name in ("batch_size", "buffer_size", "log_every"):
@@ -62,8 +60,6 @@ class SACConfig:
             raise ConfigError(f"sac.updates_per_decision must be > 0, got {self.updates_per_decision}")
         if not self.init_temperature > 0:
             raise ConfigError(f"sac.init_temperature must be > 0, got {self.init_temperature}")
-        if not 0.0 <= self.policy_average <= 1.0:
-            raise ConfigError(f"sac.policy_average must be in [0, 1], got {self.policy_average}")
         if not self.q_hidden or any(int(h) < 1 for h in self.q_hidden):
             raise ConfigError(f"sac.q_hidden must list positive layer widths, got {list(self.q_hidden)}")
 
@@ -132,20 +128,19 @@ class TwinQ(nn.Module):
 
     (Stacking the critics' layers into batched matrix products was measured slower on CPU than separate layers.)"""
 
-    def __init__(self, obs_dim: int, sample_dim: int, hidden: Sequence[int], n: int = 2,
-                 layer_norm: bool = False) -> None:  # fmt: skip
+    def __init__(self, obs_dim: int, sample_dim: int, hidden: Sequence[int], n: int = 2) -> None:
         super().__init__()
-        self.critics = nn.ModuleList(_relu_mlp(obs_dim + sample_dim, hidden, layer_norm) for _ in range(n))
+        self.critics = nn.ModuleList(_relu_mlp(obs_dim + sample_dim, hidden) for _ in range(n))
 
     def forward(self, obs: torch.Tensor, samples: torch.Tensor) -> torch.Tensor:
         x = torch.cat([obs, samples], dim=-1)
         return torch.stack([critic(x).squeeze(-1) for critic in self.critics])
 
 
-def _relu_mlp(in_dim: int, hidden: Sequence[int], layer_norm: bool = False) -> nn.Sequential:
+def _relu_mlp(in_dim: int, hidden: Sequence[int]) -> nn.Sequential:
     layers: list[nn.Module] = []
     for width in hidden:
-        layers += [nn.Linear(in_dim, int(width)), *([nn.LayerNorm(int(width))] if layer_norm else []), nn.ReLU()]
+        layers += [nn.Linear(in_dim, int(width)), nn.ReLU()]
         in_dim = int(width)
     return nn.Sequential(*layers, nn.Linear(in_dim, 1))
 
@@ -227,9 +222,7 @@ class SACLearner:
 
         self.policy, self.cfg, self.gamma, self.generator = policy, cfg, gamma, generator
         obs_dim, k = int(policy.obs_dim), int(policy.out_dim)
-        self.critics = TwinQ(obs_dim, k, cfg.q_hidden, layer_norm=cfg.critic_layer_norm)
-        # The evaluated meta-policy: the trained one, or a Polyak average of it (smooths the actor's chase of the critic)
-        self.averaged = copy.deepcopy(policy).requires_grad_(False) if cfg.policy_average > 0 else None
+        self.critics = TwinQ(obs_dim, k, cfg.q_hidden)
         self.target_critics = copy.deepcopy(self.critics).requires_grad_(False)
         self.q_optimizer = torch.optim.Adam(self.critics.parameters(), lr=cfg.learning_rate)
         self.actor_optimizer = torch.optim.Adam(policy.parameters(), lr=cfg.learning_rate)
@@ -262,11 +255,6 @@ class SACLearner:
         return True  # every observed decision is in the buffer
 
     @property
-    def deployed(self) -> nn.Module:
-        """The meta-policy that evaluation and checkpoints' ``policy`` use."""
-        return self.averaged if self.averaged is not None else self.policy
-
-    @property
     def temperature(self) -> float:
         return float(self.log_temperature.detach().exp())
 
@@ -294,8 +282,6 @@ class SACLearner:
         temperature_loss(self.log_temperature, losses["logp"], self.target_entropy).backward()
         self.temperature_optimizer.step()
         soft_update(self.target_critics, self.critics, self.cfg.tau)
-        if self.averaged is not None:
-            soft_update(self.averaged, self.policy, self.cfg.policy_average)
         self.gradient_steps += 1
         with torch.no_grad():  # summed as tensors: one conversion per train.csv row, not per gradient step
             values = torch.stack([losses["q"], losses["actor"], losses["value"], -losses["logp"].mean(),

@@ -68,8 +68,9 @@ class Setup(NamedTuple):
 def prepare(opts: dict) -> Setup:
     """Everything that can refuse the input, before anything is written: the checkpoint, the task it is evaluated on
     (built, reset, and its sizes checked against the policy's), the output directory."""
+    from hrtc.checkpoint import load_policy
     from hrtc.cli import build_env, check_checkpoint_fits, output_path, task_config
-    from hrtc.trainer import eval_seeds, load_policy
+    from hrtc.episodes import eval_seeds
 
     path = Path(opts["checkpoint"])
     policy, normalizer, meta = load_policy(path)
@@ -105,6 +106,8 @@ def prepare(opts: dict) -> Setup:
 def run(opts: dict, setup: Setup) -> str:
     import numpy as np
 
+    from hrtc.environments import frame_source
+    from hrtc.episodes import eval_seeds, evaluate
     from hrtc.logging.trace import (
         RecordingConfig,
         TraceCollector,
@@ -113,7 +116,6 @@ def run(opts: dict, setup: Setup) -> str:
         skill_statistics,
         weight_summary,
     )
-    from hrtc.trainer import eval_seeds, evaluate, frame_source
 
     policy, normalizer, meta, env, task, env_kwargs, out = setup
     path = Path(opts["checkpoint"])
@@ -123,17 +125,14 @@ def run(opts: dict, setup: Setup) -> str:
     if opts["logger"] != "off":
         from hrtc.cli import group_choices, task_config
         from hrtc.logging.rerun_sink import RerunSink
-        from hrtc.tree import describe
 
         task_cfg = task_config(task) if task in group_choices("task") else {}  # the task evaluated on
         cfg = RecordingConfig(mode=str(opts["logger"]), frames=bool(opts["frames"]),
                               frame_every=int(opts["frame_every"]), frame_episodes=int(opts["frame_episodes"]),
                               frame_evals_every=1, action_names=tuple(task_cfg.get("action_names") or ()),
                               key_state=task_cfg.get("key_state"))  # fmt: skip
-        tree, paths = describe(env, f"{task}: {meta['algo']}-{meta['dist']} from {path}")
-        task_action_dim = int(getattr(env, "action_dim", env.action_space.shape[0]))
-        recorder = RerunSink(out, cfg, names, task_action_dim, tree, tree_paths=paths,
-                             state_source=env.unwrapped.skill_state, eval_episodes=episodes)  # fmt: skip
+        title = f"{task}: {meta['algo']}-{meta['dist']} from {path}"
+        recorder = RerunSink.for_env(out, cfg, env, title, eval_episodes=episodes)
         recorder.start_evaluation(int(meta.get("global_step", 0)), last=True)
         render = frame_source(env, cfg.frame_size) if cfg.frames else None
     collector = TraceCollector(recorder)

@@ -68,6 +68,8 @@ def run(opts: dict) -> str:
     episodes, seed = int(opts["episodes"]), int(opts["seed"])
     out = opts["out"] or output_path(directory=True)("out", Path("runs") / "skills" / task["name"] / label)
 
+    from hrtc.environments import frame_source
+    from hrtc.episodes import Decision, eval_seeds, run_episodes
     from hrtc.logging.trace import (  # the heavy imports (torch) after the checks: bad input is answered at once
         RecordingConfig,
         TraceCollector,
@@ -75,8 +77,6 @@ def run(opts: dict) -> str:
         format_skill_statistics,
         skill_statistics,
     )
-    from hrtc.trainer import Decision, eval_seeds, frame_source, run_episodes
-    from hrtc.tree import describe
 
     env = build_env(task["name"], "hrtc", skills, "sum", task.get("env_kwargs"), 1, eval_seeds(seed, 1)[0])
     recorder, render = None, None
@@ -92,9 +92,7 @@ def run(opts: dict) -> str:
             action_names=tuple(task.get("action_names") or ()),
             key_state=task.get("key_state"),
         )
-        tree, paths = describe(env, f"{task['name']}: {label}")
-        recorder = RerunSink(out, cfg, names, int(env.action_dim), tree, tree_paths=paths,
-                             state_source=env.unwrapped.skill_state, eval_episodes=episodes)  # fmt: skip
+        recorder = RerunSink.for_env(out, cfg, env, f"{task['name']}: {label}", eval_episodes=episodes)
         recorder.start_evaluation(0, last=True)
         render = frame_source(env, cfg.frame_size) if cfg.frames else None
     collector = TraceCollector(recorder)

@@ -24,25 +24,11 @@ from typing import Any
 import numpy as np
 import torch
 
-from hrtc.checkpoint import META_KEYS, load_checkpoint, resolve_checkpoint
-from hrtc.composition import ActionFilter, KeysFilter, SkillLibrary, build_library
+from hrtc.checkpoint import load_policy, resolve_checkpoint
+from hrtc.composition import ActionFilter, Composition, KeysFilter, SkillLibrary, build_library
 from hrtc.errors import CheckpointError, ConfigError, ShapeError
-from hrtc.normalize import ObsNormalizer
-from hrtc.policy import ActorCritic
+from hrtc.policy import to_action
 from hrtc.skill import SkillOutput
-
-
-def load_policy(path: str | Path) -> tuple[ActorCritic, ObsNormalizer | None, dict[str, Any]]:
-    """Rebuild a checkpoint's actor-critic and observation normaliser. Returns (policy, normaliser or None, meta)."""
-    from hrtc.trainer import load_policy as load_trained_policy
-
-    path = resolve_checkpoint(path)
-    meta = dict(load_checkpoint(path)["meta"])
-    missing = [k for k in META_KEYS if k not in meta]
-    if missing:
-        raise CheckpointError(f"{path} lacks meta {missing}: it predates checkpoints that can act as skills")
-    policy, normalizer, meta = load_trained_policy(path)
-    return policy, normalizer, meta
 
 
 class PolicySkill:
@@ -85,8 +71,7 @@ class PolicySkill:
             env_kwargs = self.meta.get("env_kwargs", {}) if self.task == self.meta["task"] else {}
         self.decision_every = int(self.meta.get("decision_every", 1)) if self.algo == "hrtc" else 1
         self.library: SkillLibrary | None = None
-        self._weights = np.zeros(0)
-        self._t = 0
+        self.composition: Composition | None = None
 
         env = envs.make(self.task, **dict(env_kwargs))
         try:
@@ -103,7 +88,8 @@ class PolicySkill:
                 raise CheckpointError(f"{self.path}: {self.out_dim} weights for {len(self.meta['skills_cfg'])} skills")
             self.library = build_library(self.meta["skills_cfg"])
             low, high = space.low.astype(np.float64), space.high.astype(np.float64)
-            self.action_filter = ActionFilter(low, high, self.meta.get("action_filter", "sum"))
+            action_filter = ActionFilter(low, high, self.meta.get("action_filter", "sum"))
+            self.composition = Composition(self.library, action_filter, self.decision_every)
             child_keys = [k for s in self.library.slots for k in _filter_keys(s.state_filter)]
         else:
             if self.out_dim != self.action_dim:
@@ -136,10 +122,8 @@ class PolicySkill:
         return f"{self.algo}-{self.dist} policy from {self.meta['task']}{rate} ({self.path})"
 
     def reset(self, rng: np.random.Generator) -> None:
-        self._t = 0
-        self._weights = np.zeros(self.out_dim)
-        if self.library is not None:
-            self.library.reset(rng)
+        if self.composition is not None:
+            self.composition.reset(rng)
 
     @torch.inference_mode()
     def _mode(self, observation: np.ndarray) -> np.ndarray:
@@ -158,20 +142,12 @@ class PolicySkill:
         parts = np.split(state, np.cumsum(self._sizes)[:-1])
         named = dict(zip(self.state_keys, parts, strict=True))
         observation = np.concatenate([named[k] for k in self.observation_keys])
-        if self.library is None:
-            u = self._mode(observation)
-            if self.dist == "beta":
-                action = self.low + (self.high - self.low) * u
-            else:
-                action = np.clip(u, self.low, self.high)
-            return SkillOutput(action, {})
-        if self._t % self.decision_every == 0:  # the node's own rate: weights held between decisions
-            self._weights = np.clip(self._mode(observation), 0.0, 1.0)
-        proposals, infos = self.library.propose(named, self._t, self.action_dim)
-        self._t += 1
-        action = self.action_filter(self._weights, proposals)
+        if self.composition is None:
+            return SkillOutput(to_action(self._mode(observation), self.low, self.high, self.dist), {})
+        # The node's own rate: the composition holds its weights between decisions.
+        action, _, infos = self.composition.act(lambda: named, lambda: self._mode(observation))
         info: dict[str, float] = {}
-        for name, weight, child in zip(self.library.names, self._weights, infos, strict=True):
+        for name, weight, child in zip(self.composition.names, self.composition.weights, infos, strict=True):
             info[f"weight/{name}"] = float(weight)
             info.update({f"{name}/{k}": float(v) for k, v in child.items()})
         return SkillOutput(action, info)

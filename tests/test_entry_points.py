@@ -16,8 +16,9 @@ import pytest
 import torch
 
 from hrtc.checkpoint import load_checkpoint, save_checkpoint
+from hrtc.config import RunConfig
 from hrtc.ppo import PPOConfig
-from hrtc.trainer import RunConfig, Trainer
+from hrtc.trainer import Trainer
 
 ROOT = Path(__file__).resolve().parents[1]
 SKILLS = ["swingup", "balance", "tracker", "hold"]

@@ -24,7 +24,7 @@ from pathlib import Path
 site = Path(sys.argv[1]).resolve()
 import envs, hrtc, skills
 from hrtc.cli import group_choices, task_config
-from hrtc.trainer import make_env
+from hrtc.environments import make_env
 
 for module in (envs, hrtc, skills):
     assert Path(module.__file__).resolve().is_relative_to(site), f"{module.__name__} imported from {module.__file__}"

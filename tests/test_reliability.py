@@ -18,11 +18,12 @@ from omegaconf import OmegaConf
 import envs
 from hrtc.checkpoint import load_checkpoint
 from hrtc.cli import compose, start_run
+from hrtc.config import ROOT_CONF, RunConfig
 from hrtc.errors import HRTCError, SkillError
 from hrtc.logging.rerun_sink import read_recording, segment_paths
 from hrtc.logging.trace import RecordingConfig
 from hrtc.ppo import PPOConfig
-from hrtc.trainer import ROOT_CONF, RunConfig, Trainer
+from hrtc.trainer import Trainer
 
 ROOT = Path(__file__).resolve().parents[1]
 SKILLS = OmegaConf.to_container(OmegaConf.load(ROOT_CONF / "task" / "cartpole_swingup.yaml"))["task"]["skills"]

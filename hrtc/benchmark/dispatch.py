@@ -161,12 +161,10 @@ def _ray_jobs(specs: Sequence[RunSpec], fn: Callable, address: str | None, num_c
     started = not ray.is_initialized()
     if started:
         if address:
-            # The cluster's nodes need the project's packages: Ray ships these three with the job.
-            import envs
-            import hrtc
-            import skills
-
-            modules = [hrtc, envs, skills]
+            # The cluster's nodes need the project's packages: Ray ships these three folders with the job (by path:
+            # the core imports no skill module).
+            root = Path(__file__).resolve().parents[2]
+            modules = [str(root / name) for name in ("hrtc", "envs", "skills")]
             ray.init(address=address, runtime_env={"py_modules": modules}, log_to_driver=False)
         else:
             # Ray renices its workers by +15 by default; the runs are the work here, so they keep the driver's

@@ -335,8 +335,8 @@ def references(task: dict, args: dict[str, Any], results_path: Path) -> dict[str
     seed ``reference_seed``; reused from ``results_path`` when it holds them all for as many episodes."""
     from hrtc.benchmark.metrics import evaluate_references
     from hrtc.benchmark.runs import decision_every, episode_seeds
+    from hrtc.environments import make_env
     from hrtc.references import reference_rules
-    from hrtc.trainer import make_env
 
     metric = dict(args["metric"])
     kind = metric.pop("name")

@@ -55,25 +55,10 @@ def after_training(spec: Any, started: float) -> dict[str, Any]:
 
 
 # --------------------------------------------------------------------------------------------------- policies
-def policy_decider(policy: Any, normalizer: Any, env: gym.Env, dist: str) -> Callable[[np.ndarray], Any]:
-    """``decide(obs)`` acting with a policy's mode (the Beta mean), for :func:`hrtc.trainer.run_episodes`."""
-    import torch
-
-    from hrtc.trainer import Decision, normalize_obs, to_env_action
-
-    def decide(obs: np.ndarray) -> Decision:
-        nobs = normalize_obs(normalizer, obs[None])
-        with torch.no_grad():
-            u = policy.distribution(torch.as_tensor(nobs)).mode().numpy()[0]
-        return Decision(nobs[0], u, to_env_action(u, env.action_space, dist))
-
-    return decide
-
-
 def checkpoint_env(meta: Mapping[str, Any], decision_every: int | None = None) -> gym.Env:
     """The env a checkpoint's policy acts in (its task, skills and env_kwargs), deciding every ``decision_every``
     env steps (default: the checkpoint's own rate)."""
-    from hrtc.trainer import make_env
+    from hrtc.environments import make_env
 
     every = int(meta["decision_every"]) if decision_every is None else decision_every
     return make_env(meta["task"], meta["algo"], meta["skills_cfg"], meta["action_filter"], meta["env_kwargs"], every)
@@ -83,7 +68,8 @@ def checkpoint_returns(path: str | Path, seeds: Sequence[int]) -> np.ndarray:
     """Deterministic returns of a trainer checkpoint (HRTC or PPO) on ``seeds``."""
     import torch
 
-    from hrtc.trainer import evaluate, load_policy
+    from hrtc.checkpoint import load_policy
+    from hrtc.episodes import evaluate
 
     torch.set_num_threads(1)
     loaded = load_policy(path)
@@ -127,7 +113,7 @@ class SuccessWatch(gym.Wrapper):
 def success_rows(env: gym.Env, decide: Callable[[np.ndarray], Any], seeds: Sequence[int], every: int = 1) -> list:
     """One row per episode of ``decide`` on ``env`` (stepping one env step at a time), re-deciding every ``every``
     env steps and holding the decision in between."""
-    from hrtc.trainer import run_episodes
+    from hrtc.episodes import run_episodes
 
     watch = SuccessWatch(env)
     held: list[Any] = []
@@ -144,14 +130,15 @@ def success_rows(env: gym.Env, decide: Callable[[np.ndarray], Any], seeds: Seque
 def checkpoint_success(path: Path, seeds: Sequence[int]) -> list[dict[str, Any]]:
     import torch
 
-    from hrtc.trainer import load_policy
+    from hrtc.checkpoint import load_policy
+    from hrtc.episodes import mode_decider
 
     torch.set_num_threads(1)
     loaded = load_policy(path)
     # One env step at a time (the decision held by success_rows), so success and collisions count at every step.
     env = checkpoint_env(loaded.meta, decision_every=1)
     try:
-        decide = policy_decider(loaded.policy, loaded.normalizer, env, loaded.meta["dist"])
+        decide = mode_decider(loaded.policy, loaded.normalizer, env.action_space, loaded.meta["dist"])
         return success_rows(env, decide, seeds, int(loaded.meta["decision_every"]))
     finally:
         env.close()
@@ -184,8 +171,9 @@ def evaluate_references(task: Mapping[str, Any], rules: Mapping[str, Any], seeds
     """Every reference rule on ``seeds`` (returns) or on the success metric's targets (success rows and summary).
     A rule with ``acts_on_env`` (a controller of the raw task, e.g. gymnasium's own heuristic) acts on the task
     itself; the others weigh the task's skills on the composed env."""
+    from hrtc.environments import make_env
+    from hrtc.episodes import Decision, run_episodes
     from hrtc.references import FixedWeights, rule_decider
-    from hrtc.trainer import Decision, make_env, run_episodes
 
     args = {**METRIC_ARGS[metric], **dict(args)}
     out: dict[str, Any] = {}
@@ -239,7 +227,7 @@ def training_episodes(run_dir: Path, seed: int, started: float, args: Mapping[st
     reset seed, left out), in the order they finished; frames per second over training and evaluation."""
     import pandas as pd
 
-    from hrtc.trainer import eval_seeds
+    from hrtc.episodes import eval_seeds
 
     path = run_dir / "episodes.csv"
     log = pd.read_csv(path, names=EPISODE_LOG) if path.exists() and path.stat().st_size else pd.DataFrame(

@@ -143,7 +143,7 @@ def run(spec: RunSpec) -> dict[str, Any]:
 def episode_seeds(base: int | None, seed: int, episodes: int) -> list[int]:
     """``episodes`` seeds of run seed ``seed``: ``base + 1000 seed + k``; base None: the evaluation seeds
     (:func:`hrtc.trainer.eval_seeds`). A base of 2,000,000 keeps them disjoint from training and evaluation."""
-    from hrtc.trainer import eval_seeds
+    from hrtc.episodes import eval_seeds
 
     return eval_seeds(seed, episodes) if base is None else [base + 1_000 * seed + k for k in range(episodes)]
 
@@ -178,7 +178,7 @@ class _EvalCollector:
         self.curve["solve_reward"].append(confirm_solve(self.spec, self.curve, self._returns))
 
     def _returns(self, seeds: list[int]) -> np.ndarray:
-        from hrtc.trainer import evaluate
+        from hrtc.episodes import evaluate
 
         t = self.trainer
         return evaluate(t.policy, t.normalizer, t.eval_env, seeds, t.cfg.dist)
@@ -230,7 +230,8 @@ def _trainer_run(spec: RunSpec) -> dict[str, Any]:
     from hydra.core.global_hydra import GlobalHydra
     from omegaconf import OmegaConf
 
-    from hrtc.trainer import RunConfig, Trainer
+    from hrtc.config import RunConfig
+    from hrtc.trainer import Trainer
 
     GlobalHydra.instance().clear()
     with initialize_config_module("hrtc.conf", version_base=None):
@@ -275,7 +276,7 @@ def confirm_solve(spec: RunSpec, curve: Mapping[str, list[Any]], returns_of: Any
     """The solve rule's mean over ``spec.solve_episodes`` episodes for the evaluation just appended to ``curve``:
     the evaluation's own mean when it already has that many episodes; computed (the remaining seeds) when it passes
     the screen and no earlier evaluation confirmed; else None."""
-    from hrtc.trainer import eval_seeds
+    from hrtc.episodes import eval_seeds
 
     if not spec.confirms:
         return curve["episode_reward"][-1]
@@ -331,18 +332,14 @@ def sb3_model(name: str, env: gym.Env, seed: int, overrides: tuple[str, ...] = (
 
 
 def sb3_evaluate(model: Any, env: gym.Env, seeds: list[int]) -> np.ndarray:
-    """Returns of one deterministic episode per seed."""
-    returns = []
-    for seed in seeds:
-        obs, _ = env.reset(seed=int(seed))
-        total, done = 0.0, False
-        while not done:
-            action, _ = model.predict(obs, deterministic=True)
-            obs, reward, terminated, truncated, _ = env.step(action)
-            total += float(reward)
-            done = terminated or truncated
-        returns.append(total)
-    return np.asarray(returns)
+    """Returns of one deterministic episode per seed (the one episode loop: :func:`hrtc.episodes.run_episodes`)."""
+    from hrtc.episodes import Decision, run_episodes
+
+    def decide(obs: np.ndarray) -> Decision:
+        action, _ = model.predict(obs, deterministic=True)
+        return Decision(obs, action, action)
+
+    return run_episodes(env, decide, seeds)
 
 
 def sb3_train(spec: RunSpec, task: Mapping[str, Any] | None = None, decision_every: int = 1) -> dict[str, Any]:
@@ -356,7 +353,8 @@ def sb3_train(spec: RunSpec, task: Mapping[str, Any] | None = None, decision_eve
     import torch
 
     import envs
-    from hrtc.trainer import eval_seeds, make_env
+    from hrtc.environments import make_env
+    from hrtc.episodes import eval_seeds
 
     task = dict(task or {})
     torch.set_num_threads(spec.cpus)

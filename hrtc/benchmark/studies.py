@@ -231,15 +231,16 @@ def tree_trace(checkpoint: Path, seed: int = 1_000_000) -> Any:
     decision."""
     import pandas as pd
 
-    from hrtc.benchmark.metrics import checkpoint_env, policy_decider
+    from hrtc.benchmark.metrics import checkpoint_env
+    from hrtc.checkpoint import load_policy
     from hrtc.cli import task_config
-    from hrtc.trainer import load_policy
+    from hrtc.episodes import mode_decider
     from hrtc.tree import effective_weights
 
     loaded = load_policy(checkpoint)
     env = checkpoint_env(loaded.meta)
     key = task_config(loaded.meta["task"]).get("key_state") or "pole_angle"
-    decide = policy_decider(loaded.policy, loaded.normalizer, env, loaded.meta["dist"])
+    decide = mode_decider(loaded.policy, loaded.normalizer, env.action_space, loaded.meta["dist"])
     rows: list[dict] = []
     obs, _ = env.reset(seed=seed)
     total, done = 0.0, False

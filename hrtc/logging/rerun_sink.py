@@ -214,6 +214,22 @@ class RerunSink:
         self._styled: set[str] = set()  # entities whose series names and colours are logged
         self._log_static(tree)
 
+    @classmethod
+    def for_env(cls, run_dir: str | Path, cfg: RecordingConfig, env: Any, title: str, resume: bool = False,
+                eval_episodes: int | None = None, updates: int = 0) -> RerunSink:  # fmt: skip
+        """A recording of the episodes of ``env`` (a composed env: its skills and skill tree; else the policy's
+        outputs ``a0``, ``a1``...), titled ``title``; its ``update`` timeline continues from ``updates`` (a resumed
+        run's)."""
+        from hrtc.tree import describe
+
+        size = int(env.action_space.shape[0])
+        names = tuple(getattr(env, "skill_names", ())) or tuple(f"a{i}" for i in range(size))
+        tree, paths = describe(env, title)
+        sink = cls(run_dir, cfg, names, int(getattr(env, "action_dim", size)), tree, resume, tree_paths=paths,
+                   state_source=env.unwrapped.skill_state, eval_episodes=eval_episodes)  # fmt: skip
+        sink.updates = int(updates)
+        return sink
+
     def _connect(self) -> None:
         mode, path = self.cfg.mode, str(self.path)
         if mode == "save":

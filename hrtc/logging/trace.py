@@ -1,6 +1,6 @@
 """What one evaluation episode did, step by step: the data a recording is made of (no rerun import here).
 
-An :class:`EpisodeTrace` is filled by :func:`hrtc.trainer.evaluate` (one :meth:`EpisodeTrace.add` per policy
+An :class:`EpisodeTrace` is filled by :func:`hrtc.episodes.run_episodes` (one :meth:`EpisodeTrace.add` per policy
 decision) and handed to a :class:`Recorder` when the episode ends. For HRTC a decision's ``weights`` are the skill
 weights; for plain PPO they are the policy's output ``u`` (there are no skills).
 """
@@ -168,7 +168,10 @@ def key_value(state: Mapping[str, np.ndarray], key: str) -> float:
 
 
 class Recorder(Protocol):
-    """Receives evaluation episodes. ``begin`` returns the trace to fill (frames or not), ``end`` takes it back."""
+    """Receives evaluation episodes. ``start_evaluation`` announces an evaluation (its episodes follow), ``begin``
+    returns the trace of one episode to fill (frames or not), ``end`` takes it back."""
+
+    def start_evaluation(self, global_step: int, last: bool = False) -> None: ...
 
     def begin(
         self, episode_in_eval: int, seed: int, render: Callable[[], np.ndarray | None] | None
@@ -196,17 +199,16 @@ def weight_summary(weights: np.ndarray, alpha: np.ndarray | None = None, beta: n
 
 
 class TraceCollector:
-    """A :class:`Recorder` that keeps every finished trace (for statistics) and passes it on to ``inner`` if any,
-    as it does any other call (``start_evaluation``, ``sample``...). Without ``inner`` it records no frames."""
+    """A :class:`Recorder` that keeps every finished trace (for statistics) and passes every call on to ``inner`` if
+    any. Without ``inner`` it records no frames."""
 
     def __init__(self, inner: Recorder | None = None) -> None:
         self.inner = inner
         self.traces: list[EpisodeTrace] = []
 
-    def __getattr__(self, name: str) -> Any:
-        if name == "inner" or self.inner is None:
-            raise AttributeError(name)
-        return getattr(self.inner, name)
+    def start_evaluation(self, global_step: int, last: bool = False) -> None:
+        if self.inner is not None:
+            self.inner.start_evaluation(global_step, last)
 
     def begin(self, episode_in_eval: int, seed: int, render: Callable[[], np.ndarray | None] | None) -> EpisodeTrace:
         if self.inner is not None:

@@ -25,7 +25,7 @@ from hrtc.benchmark.report import (
     summarize,
 )
 from hrtc.benchmark.runs import CURVE_KEYS, RunSpec, confirm_solve
-from hrtc.trainer import eval_seeds
+from hrtc.episodes import eval_seeds
 
 ROOT = Path(__file__).resolve().parents[2]
 

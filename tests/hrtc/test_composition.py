@@ -5,7 +5,16 @@ import numpy as np
 import pytest
 
 from envs import make
-from hrtc.composition import ActionFilter, ComposedEnv, KeysFilter, SkillLibrary, SkillSlot, blend, build_library
+from hrtc.composition import (
+    ActionFilter,
+    ComposedEnv,
+    Composition,
+    KeysFilter,
+    SkillLibrary,
+    SkillSlot,
+    blend,
+    build_library,
+)
 from hrtc.errors import ConfigError, ShapeError, UnknownNameError
 from hrtc.skill import Skill, SkillOutput
 from skills.static import StaticIntent
@@ -153,3 +162,30 @@ def test_build_library_from_config_and_its_errors():
         build_library({"x": {"skill": {"_target_": "skills.nope.Missing"}}})
     with pytest.raises(ConfigError, match="at least one"):
         build_library({})
+
+
+def test_the_composition_holds_its_weights_between_decisions_and_asks_each_skill_once_a_step():
+    """The one composition (ComposedEnv and a learned HRTC skill both act through it): new weights at steps 0, k,
+    2k... (the meta-policy is asked only then), the skills' proposals for each step's state asked once."""
+    counter = _Counter()
+    library = SkillLibrary([SkillSlot("counter", counter, KeysFilter(("cart_position",))),
+                            SkillSlot("push", StaticIntent([0.5]), KeysFilter(()))])  # fmt: skip
+    composition = Composition(library, ActionFilter(np.array([-1.0]), np.array([1.0])), decision_every=3)
+    composition.reset(np.random.default_rng(0))
+    decisions, states = [], []
+
+    def decide() -> np.ndarray:
+        decisions.append(composition.step)
+        return np.array([1.0, 2.0 if len(decisions) == 1 else 0.0])  # clipped to [0, 1]
+
+    def state() -> dict:
+        states.append(composition.step)
+        return {"cart_position": np.zeros(1)}
+
+    composition.propose(state)  # asked ahead (as ComposedEnv does at reset): not asked again at step 0
+    actions = [composition.act(state, decide)[0][0] for _ in range(7)]
+    assert decisions == [0, 3, 6] and states == list(range(7)) and counter.calls == 7
+    np.testing.assert_allclose(actions, [0.01 * (t + 1) + (0.5 if t < 3 else 0.0) for t in range(7)])
+    np.testing.assert_array_equal(composition.weights, [1.0, 0.0])
+    with pytest.raises(ConfigError, match="decision_every must be >= 1"):
+        Composition(library, ActionFilter(np.array([-1.0]), np.array([1.0])), decision_every=0)

@@ -115,13 +115,15 @@ def test_features_are_recomputed_after_the_weights_change():
 def test_the_trainer_builds_the_encoder_from_the_config():
     import gymnasium as gym
 
-    from hrtc.trainer import RunConfig, policy_for
+    from hrtc.config import RunConfig
+    from hrtc.policy import build_policy
 
     space = gym.spaces.Box(0.0, 1.0, (5,), np.float32)
     cfg = RunConfig(task="carracing", skills={"hold": {}}, hidden=(100,), encoder=SPEC)
-    policy = policy_for(cfg, OBS_DIM, space)
+    policy = build_policy(OBS_DIM, space.low, space.high, cfg.dist, cfg.hidden, encoder=cfg.encoder)
     assert isinstance(policy.encoder, ConvEncoder)
-    assert policy_for(RunConfig(task="carracing", skills={"hold": {}}), 10, space).encoder is None
+    plain = RunConfig(task="carracing", skills={"hold": {}})
+    assert build_policy(10, space.low, space.high, plain.dist, plain.hidden, encoder=plain.encoder).encoder is None
     with pytest.raises(UnknownNameError):
         RunConfig(task="carracing", skills={"hold": {}}, encoder={"name": "vit"})
 

@@ -10,7 +10,7 @@ from omegaconf import OmegaConf
 
 import envs
 from hrtc.cli import CONFIG_MODULE, group_choices, task_config
-from hrtc.trainer import make_env
+from hrtc.environments import make_env
 
 # The checkers are meant for the raw env and say so for a wrapper; checking the wrapper is the point here.
 pytestmark = pytest.mark.filterwarnings("ignore:.*different from the unwrapped version")

@@ -7,9 +7,12 @@ import torch
 
 import envs
 from hrtc.checkpoint import load_checkpoint
+from hrtc.config import RunConfig
+from hrtc.environments import make_env
 from hrtc.normalize import ObsNormalizer
+from hrtc.policy import build_policy
 from hrtc.ppo import PPOConfig
-from hrtc.trainer import RunConfig, Trainer, make_env, policy_for
+from hrtc.trainer import Trainer
 
 TASK = "test_point_mass"
 
@@ -70,7 +73,8 @@ def test_meta_policy_learns_weight_above_0_9_on_the_useful_skill(tmp_path):
     evals = pd.read_csv(tmp_path / "eval.csv")
     state = load_checkpoint(tmp_path / "checkpoints" / "last.pt")
     env = make_env(TASK, "hrtc", SKILLS)
-    policy = policy_for(cfg, 2, env.action_space)
+    space = env.action_space
+    policy = build_policy(2, space.low, space.high, cfg.dist, cfg.hidden, cfg.beta_init_bias, cfg.encoder)
     policy.load_state_dict(state["policy"])
     normalizer = ObsNormalizer((2,))
     normalizer.rms.load_state_dict(state["obs_rms"])

@@ -15,13 +15,17 @@ import pytest
 from omegaconf import OmegaConf
 
 from hrtc import review
+from hrtc.callbacks import Evaluation
 from hrtc.cli import compose, group_choices
+from hrtc.config import ROOT_CONF, RunConfig
+from hrtc.environments import make_env
+from hrtc.episodes import Decision, eval_seeds, evaluate, run_episodes
 from hrtc.errors import ConfigError, HRTCError, UnknownNameError
 from hrtc.logging.palette import NEUTRAL, skill_colors
 from hrtc.logging.rerun_sink import RerunSink, entity_paths, read_blueprint, read_recording, segment_paths, stores
 from hrtc.logging.trace import RecordingConfig, TraceCollector, weight_summary
 from hrtc.ppo import PPOConfig
-from hrtc.trainer import ROOT_CONF, Decision, RunConfig, Trainer, eval_seeds, evaluate, make_env, run_episodes
+from hrtc.trainer import Trainer
 
 ROOT = Path(__file__).resolve().parents[2]
 SKILLS = OmegaConf.to_container(OmegaConf.load(ROOT_CONF / "task" / "cartpole_swingup.yaml"))["task"]["skills"]
@@ -42,8 +46,9 @@ def _cfg(steps: int, **kwargs) -> RunConfig:
 def trained(tmp_path_factory):
     run_dir = tmp_path_factory.mktemp("run")
     trainer = Trainer(_cfg(1000), run_dir)
-    tee = TraceCollector(trainer.recorder)  # keeps what the evaluations hand over and passes it on to the recording
-    trainer.recorder = tee
+    (evaluation,) = [c for c in trainer.callbacks if isinstance(c, Evaluation)]
+    tee = TraceCollector(evaluation.recorder)  # keeps what the evaluations hand over and passes it on to the recording
+    evaluation.recorder = tee
     trainer.train()
     return run_dir, tee.traces
 
@@ -292,7 +297,8 @@ def test_eval_skill_records_one_skill_alone(tmp_path):
 
 def test_evaluation_recorder_does_not_change_returns(trained):
     run_dir, _ = trained
-    from hrtc.trainer import load_policy, make_env
+    from hrtc.checkpoint import load_policy
+    from hrtc.environments import make_env
 
     policy, normalizer, meta = load_policy(run_dir / "checkpoints" / "last.pt")
     env = make_env(meta["task"], meta["algo"], meta["skills_cfg"], meta["action_filter"], meta["env_kwargs"], 5)

@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 
 from hrtc.cli import task_config
+from hrtc.environments import make_env
 from hrtc.errors import ConfigError
 from hrtc.references import UNTRAINED, FixedWeights, SwitchRule, evaluate_rules, reference_rules
-from hrtc.trainer import make_env
 
 SWITCH = SwitchRule("pole_angle", 0.5, above={"swingup": 1.0}, below={"balance": 1.0})
 

@@ -7,6 +7,8 @@ import pytest
 import torch
 
 import envs
+from hrtc.checkpoint import load_policy
+from hrtc.config import RunConfig
 from hrtc.distributions import BetaDistribution
 from hrtc.learner import Step
 from hrtc.policy import ActorCritic
@@ -20,7 +22,7 @@ from hrtc.sac import (
     soft_update,
     temperature_loss,
 )
-from hrtc.trainer import RunConfig, Trainer, load_policy
+from hrtc.trainer import Trainer
 
 
 # --------------------------------------------------------------------------------------------------- Beta rsample

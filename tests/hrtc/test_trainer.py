@@ -5,9 +5,10 @@ import pytest
 from omegaconf import OmegaConf
 
 from hrtc.checkpoint import load_checkpoint
+from hrtc.config import ROOT_CONF, RunConfig
 from hrtc.errors import CheckpointError, ConfigError, UnknownNameError
 from hrtc.ppo import PPOConfig
-from hrtc.trainer import ROOT_CONF, RunConfig, Trainer
+from hrtc.trainer import Trainer
 
 SKILLS = OmegaConf.to_container(OmegaConf.load(ROOT_CONF / "task" / "cartpole_swingup.yaml"))["task"]["skills"]
 

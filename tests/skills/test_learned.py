@@ -14,12 +14,13 @@ from torch.nn import functional as F
 
 import envs
 from hrtc.check import check_skill, task_states
-from hrtc.checkpoint import load_checkpoint
+from hrtc.checkpoint import load_checkpoint, load_policy_weights
 from hrtc.composition import build_library
+from hrtc.config import RunConfig
 from hrtc.errors import CheckpointError, ConfigError, ShapeError
 from hrtc.policy import ActorCritic
 from hrtc.ppo import PPOConfig
-from hrtc.trainer import RunConfig, Trainer, load_policy_weights
+from hrtc.trainer import Trainer
 from skills.learned import PolicySkill
 
 # Cheap skills (no solver): a child library whose proposals the tests can recompute by hand.

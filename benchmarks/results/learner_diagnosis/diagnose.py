@@ -20,7 +20,10 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[3]))
 
-from hrtc.trainer import Decision, eval_seeds, load_policy, make_env, normalize_obs, run_episodes  # noqa: E402
+from hrtc.checkpoint import load_policy  # noqa: E402
+from hrtc.environments import make_env  # noqa: E402
+from hrtc.episodes import Decision, eval_seeds, run_episodes  # noqa: E402
+from hrtc.normalize import normalize_obs  # noqa: E402
 
 
 def diagnose(path: str, episodes: int) -> dict[str, float]:

@@ -19,9 +19,11 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[3]))
 
+from hrtc.checkpoint import load_policy  # noqa: E402
 from hrtc.cli import task_config  # noqa: E402
+from hrtc.environments import make_env  # noqa: E402
+from hrtc.episodes import eval_seeds, evaluate  # noqa: E402
 from hrtc.references import evaluate_rules, reference_rules  # noqa: E402
-from hrtc.trainer import eval_seeds, evaluate, load_policy, make_env  # noqa: E402
 
 CONDITIONS = {"nominal": ("cartpole_swingup", {}),
               "pole mass x1.5": ("cartpole_swingup_heavy", {"pole_mass_scale": 1.5}),

@@ -1,0 +1,80 @@
+"""The environments a run acts in: the task (``ppo``) or the task composed with its skills (``hrtc``), one or many.
+
+Tasks are looked up by name in the task registry (``envs.make``); the core imports no task module itself.
+"""
+
+from __future__ import annotations
+
+import functools
+import time
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+from hrtc.composition import ComposedEnv, build_library
+
+
+def make_env(task: str, algo: str, skills: Mapping[str, Any], action_filter: str = "sum",
+             env_kwargs: Mapping[str, Any] | None = None, decision_every: int = 1,
+             diagnostics: bool = True) -> gym.Env:  # fmt: skip
+    """The environment the policy acts in: the task itself (``ppo``) or the task composed with its skills (``hrtc``).
+    ``diagnostics``: the composed env's timings and fault counters in ``info`` (see :class:`ComposedEnv`)."""
+    import envs  # the task registry (its package imports the shipped tasks so that they register)
+
+    env = envs.make(task, **dict(env_kwargs or {}))
+    if algo == "hrtc":
+        env = ComposedEnv(env, build_library(skills), action_filter, decision_every, diagnostics)  # type: ignore[arg-type]
+    return env
+
+
+def env_factory(cfg: Any) -> Callable[[], gym.Env]:
+    """A picklable thunk building the env of run config ``cfg`` (a :class:`~hrtc.config.RunConfig`), so that
+    vector-environment workers build their own env and skills."""
+    return functools.partial(
+        make_env, cfg.task, cfg.algo, cfg.skills, cfg.action_filter, cfg.env_kwargs, cfg.decision_every
+    )
+
+
+def vector_env(make: Callable[[], gym.Env], num_envs: int, mode: str = "async") -> gym.vector.VectorEnv:
+    """``num_envs`` copies of ``make()`` stepped together, in worker processes (``async``, more than one env) or in
+    this process (``sync``); an ended episode resets in the same step (its final observation in ``info``)."""
+    fns = [make for _ in range(num_envs)]
+    autoreset = gym.vector.AutoresetMode.SAME_STEP
+    if mode == "async" and num_envs > 1:
+        return gym.vector.AsyncVectorEnv(fns, autoreset_mode=autoreset, context="fork")
+    return gym.vector.SyncVectorEnv(fns, autoreset_mode=autoreset)
+
+
+def frame_source(env: gym.Env, size: Sequence[int]) -> Callable[[], np.ndarray | None] | None:
+    """A function returning the task's current camera frame (RGB, (H, W, 3) uint8), or None if it cannot render.
+    ``size`` (height, width) applies to tasks that choose their frame size (the MuJoCo tasks)."""
+    base = env.unwrapped
+    if hasattr(base, "render_size"):
+        base.render_size = (int(size[0]), int(size[1]))
+        return base.render
+    if getattr(base, "render_mode", None) == "rgb_array":
+        return base.render
+    return None
+
+
+def timed(work: Callable[[], Any]) -> tuple[Any, float]:
+    """``work()`` and the seconds it took."""
+    tic = time.perf_counter()
+    return work(), time.perf_counter() - tic
+
+
+def no_update() -> None:
+    return None
+
+
+def step_while(vec: gym.vector.VectorEnv, action: np.ndarray, work: Callable[[], Any]) -> tuple[tuple, tuple]:
+    """Step ``vec`` with ``action`` and run ``work()`` meanwhile when the envs step in worker processes. Returns the
+    step's results and ``(work(), its seconds)``."""
+    if isinstance(vec, gym.vector.AsyncVectorEnv):
+        vec.step_async(action)
+        done = timed(work)
+        return vec.step_wait(), done
+    done = timed(work)
+    return vec.step(action), done
