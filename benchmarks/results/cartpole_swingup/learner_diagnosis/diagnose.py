@@ -1,7 +1,7 @@
 """Why PPO over Beta weights stalls below the hand rule: what the trained meta-policy's weights look like.
 
-    python benchmarks/results/learner_diagnosis/diagnose.py CHECKPOINT [CHECKPOINT...] [--episodes 10]
-    python benchmarks/results/learner_diagnosis/diagnose.py --soft-rules [--episodes 10]
+    python benchmarks/results/cartpole_swingup/learner_diagnosis/diagnose.py CHECKPOINT [CHECKPOINT...] [--episodes 10]
+    python benchmarks/results/cartpole_swingup/learner_diagnosis/diagnose.py --soft-rules [--episodes 10]
 
 For each checkpoint, on the evaluation seeds of its seed: the return with the Beta means (what is evaluated) and with
 sampled weights (what PPO optimises), the share of decisions whose weights are "pinned" (the dominant weight >= 0.9 and
@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[3]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[4]))
 
 from hrtc.checkpoint import load_policy  # noqa: E402
 from hrtc.environments import make_env  # noqa: E402
