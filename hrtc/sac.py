@@ -42,9 +42,10 @@ class SACConfig:
     init_temperature: float = 0.1
     log_every: int = 250  # decisions between rows of train.csv
     normalize_obs: bool = False  # a replay buffer holds old samples: no drifting normaliser by default
+    n_step: int = 1  # decisions summed into each critic target before bootstrapping (1: the one-step target)
 
     def __post_init__(self) -> None:
-        for name in ("batch_size", "buffer_size", "log_every"):
+        for name in ("batch_size", "buffer_size", "log_every", "n_step"):
             value = getattr(self, name)
             if not isinstance(value, int) or isinstance(value, bool) or value < 1:
                 raise ConfigError(f"sac.{name} must be a positive integer, got {value!r}")
@@ -66,14 +67,17 @@ class SACConfig:
 
 # --------------------------------------------------------------------------------------------------- replay buffer
 class ReplayBatch(NamedTuple):
-    """Transitions ``(s, w, r, s', terminated)``: obs (B, obs_dim), samples (B, K), rewards (B,), next_obs (B, obs_dim),
-    terminated (B,) as floats (1 where s' is terminal: nothing is bootstrapped from it; a time limit is not)."""
+    """Transitions ``(s, w, r, s', terminated, discount)``: obs (B, obs_dim), samples (B, K), rewards (B,) (the
+    discounted sum over up to ``n_step`` decisions), next_obs (B, obs_dim) the state bootstrapped from, terminated (B,)
+    as floats (1 where s' is terminal: nothing is bootstrapped from it; a time limit is not), discount (B,) the factor
+    of the bootstrap (gamma to the number of decisions summed)."""
 
     obs: torch.Tensor
     samples: torch.Tensor
     rewards: torch.Tensor
     next_obs: torch.Tensor
     terminated: torch.Tensor
+    discount: torch.Tensor
 
 
 class ReplayBuffer:
@@ -86,18 +90,19 @@ class ReplayBuffer:
         self.samples = np.zeros((capacity, sample_dim), np.float32)
         self.rewards = np.zeros(capacity, np.float32)
         self.terminated = np.zeros(capacity, np.float32)
+        self.discount = np.zeros(capacity, np.float32)
         self.position, self.size = 0, 0
 
     def __len__(self) -> int:
         return self.size
 
     def add(self, obs: np.ndarray, samples: np.ndarray, rewards: np.ndarray, next_obs: np.ndarray,
-            terminated: np.ndarray) -> None:  # fmt: skip
+            terminated: np.ndarray, discount: np.ndarray) -> None:  # fmt: skip
         """Append a batch of N transitions (leading axis N on every argument)."""
         n = len(rewards)
         idx = (self.position + np.arange(n)) % self.capacity
         self.obs[idx], self.samples[idx], self.rewards[idx] = obs, samples, rewards
-        self.next_obs[idx], self.terminated[idx] = next_obs, terminated
+        self.next_obs[idx], self.terminated[idx], self.discount[idx] = next_obs, terminated, discount
         self.position = int((self.position + n) % self.capacity)
         self.size = min(self.size + n, self.capacity)
 
@@ -105,21 +110,61 @@ class ReplayBuffer:
         """``batch_size`` transitions drawn uniformly with replacement from what the buffer holds."""
         idx = torch.randint(0, self.size, (batch_size,), generator=generator).numpy()
         return ReplayBatch(*(torch.from_numpy(a[idx]) for a in (self.obs, self.samples, self.rewards, self.next_obs,
-                                                                 self.terminated)))  # fmt: skip
+                                                                 self.terminated, self.discount)))  # fmt: skip
 
     def state_dict(self) -> dict[str, torch.Tensor | int]:
         """The filled part in chronological order (oldest first), as tensors (``weights_only`` loads them)."""
         order = (np.arange(self.size) + (self.position if self.size == self.capacity else 0)) % self.capacity
         arrays = {k: torch.from_numpy(getattr(self, k)[order].copy())
-                  for k in ("obs", "samples", "rewards", "next_obs", "terminated")}  # fmt: skip
+                  for k in _FIELDS}  # fmt: skip
         return {**arrays, "capacity": self.capacity}
 
     def load_state_dict(self, state: dict) -> None:
         self.position, self.size = 0, 0
         n = int(state["rewards"].shape[0])
         keep = slice(max(0, n - self.capacity), n)  # a smaller buffer keeps the newest
-        self.add(*(np.asarray(state[k][keep].numpy()) for k in ("obs", "samples", "rewards", "next_obs",
-                                                                  "terminated")))  # fmt: skip
+        if "discount" not in state:  # saved before n-step targets: every transition was one decision
+            state = {**state, "discount": torch.full_like(state["rewards"], float("nan"))}
+        self.add(*(np.asarray(state[k][keep].numpy()) for k in _FIELDS))
+
+
+_FIELDS = ("obs", "samples", "rewards", "next_obs", "terminated", "discount")
+
+
+class NStepAccumulator:
+    """Turns each env's stream of decisions into n-step transitions: the discounted sum of up to ``n`` rewards and the
+    state ``n`` decisions later (sooner where the episode ended: its final state, bootstrapped unless terminal).
+
+    ``push`` takes one vector step and returns the transitions it completes (the oldest pending decision of every env
+    that now has ``n``, and all of an env whose episode ended), as arrays for :meth:`ReplayBuffer.add`."""
+
+    def __init__(self, n: int, gamma: float) -> None:
+        self.n, self.gamma = int(n), float(gamma)
+        self.pending: list[list[tuple[np.ndarray, np.ndarray, float]]] = []
+
+    def push(self, obs: np.ndarray, samples: np.ndarray, rewards: np.ndarray, next_obs: np.ndarray,
+             terminated: np.ndarray, truncated: np.ndarray) -> tuple[np.ndarray, ...] | None:  # fmt: skip
+        while len(self.pending) < len(rewards):
+            self.pending.append([])
+        out: list[tuple] = []
+        for i, queue in enumerate(self.pending[: len(rewards)]):
+            queue.append((obs[i], samples[i], float(rewards[i])))
+            ended = bool(terminated[i] or truncated[i])
+            while queue and (len(queue) == self.n or ended):
+                ret = sum(self.gamma**j * r for j, (_, _, r) in enumerate(queue))
+                out.append((queue[0][0], queue[0][1], ret, next_obs[i], float(terminated[i]),
+                            self.gamma ** len(queue)))  # fmt: skip
+                queue.pop(0)
+        if not out:
+            return None
+        return tuple(np.asarray([t[j] for t in out], np.float32) for j in range(6))
+
+    def state_dict(self) -> dict[str, Any]:
+        return {"pending": [[(torch.from_numpy(np.asarray(o, np.float32)), torch.from_numpy(np.asarray(w, np.float32)),
+                              r) for o, w, r in queue] for queue in self.pending]}  # fmt: skip
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.pending = [[(o.numpy(), w.numpy(), float(r)) for o, w, r in queue] for queue in state.get("pending", [])]
 
 
 # --------------------------------------------------------------------------------------------------- networks
@@ -148,7 +193,7 @@ def _relu_mlp(in_dim: int, hidden: Sequence[int]) -> nn.Sequential:
 # --------------------------------------------------------------------------------------------------- the math
 def soft_q_target(rewards: torch.Tensor, terminated: torch.Tensor, next_q1: torch.Tensor, next_q2: torch.Tensor,
                   next_logp: torch.Tensor, temperature: float | torch.Tensor,
-                  gamma: float) -> torch.Tensor:  # fmt: skip
+                  gamma: float | torch.Tensor) -> torch.Tensor:  # fmt: skip
     """The soft Bellman target ``r + gamma (1 - terminated) (min(Q1', Q2') - temperature log pi(w' | s'))``, (B,)."""
     soft_value = torch.min(next_q1, next_q2) - temperature * next_logp
     return rewards + gamma * (1.0 - terminated) * soft_value
@@ -174,7 +219,7 @@ def rsample_with_logp(distribution: object) -> tuple[torch.Tensor, torch.Tensor]
 
 
 def sac_losses(policy: nn.Module, critics: TwinQ, target_critics: TwinQ, batch: ReplayBatch,
-               temperature: float | torch.Tensor, gamma: float) -> dict[str, torch.Tensor]:  # fmt: skip
+               temperature: float | torch.Tensor) -> dict[str, torch.Tensor]:  # fmt: skip
     """The critics', actor's and master critic's losses on one minibatch, with the actor's log-probabilities.
 
     ``policy`` is an :class:`~hrtc.policy.ActorCritic` (``distribution(obs)``, ``value(obs)``). The critics fit the
@@ -184,7 +229,8 @@ def sac_losses(policy: nn.Module, critics: TwinQ, target_critics: TwinQ, batch: 
     with torch.no_grad():
         next_w, next_logp = rsample_with_logp(policy.distribution(batch.next_obs))
         next_q = target_critics(batch.next_obs, next_w)
-        target = soft_q_target(batch.rewards, batch.terminated, next_q[0], next_q[1], next_logp, temperature, gamma)
+        target = soft_q_target(batch.rewards, batch.terminated, next_q[0], next_q[1], next_logp, temperature,
+                               batch.discount)
     q_loss = ((critics(batch.obs, batch.samples) - target) ** 2).mean(-1).sum()
     w, logp = rsample_with_logp(policy.distribution(batch.obs))
     q_pi = critics(batch.obs, w).min(0).values
@@ -230,6 +276,7 @@ class SACLearner:
         self.temperature_optimizer = torch.optim.Adam([self.log_temperature], lr=cfg.learning_rate)
         self.target_entropy = cfg.target_entropy_per_weight * k
         self.buffer = ReplayBuffer(cfg.buffer_size, obs_dim, k)
+        self.accumulator = NStepAccumulator(cfg.n_step, gamma)
         self.decisions, self.gradient_steps = 0, 0
         self._credit = 0.0  # gradient steps owed to the decisions observed
         self._since_row = 0  # decisions since the last train.csv row
@@ -242,8 +289,10 @@ class SACLearner:
         return distribution.sample().numpy(), distribution
 
     def observe(self, step: Any) -> None:
-        self.buffer.add(step.obs, step.samples, step.rewards.astype(np.float32), step.next_obs,
-                        step.terminated.astype(np.float32))  # fmt: skip
+        completed = self.accumulator.push(step.obs, step.samples, step.rewards, step.next_obs, step.terminated,
+                                          step.truncated)  # fmt: skip
+        if completed is not None:
+            self.buffer.add(*completed)
         n = len(step.rewards)
         self.decisions += n
         self._since_row += n
@@ -270,7 +319,7 @@ class SACLearner:
     def _gradient_step(self) -> None:
         batch = self.buffer.sample(self.cfg.batch_size, self.generator)
         temperature = self.log_temperature.exp().detach()
-        losses = sac_losses(self.policy, self.critics, self.target_critics, batch, temperature, self.gamma)
+        losses = sac_losses(self.policy, self.critics, self.target_critics, batch, temperature)
         # Each backward pass accumulates into its own parameters only: the actor's loss never moves the critics.
         self.actor_optimizer.zero_grad()
         (losses["actor"] + losses["value"]).backward(inputs=list(self.policy.parameters()))
@@ -304,7 +353,7 @@ class SACLearner:
             "q_optimizer": self.q_optimizer.state_dict(), "actor_optimizer": self.actor_optimizer.state_dict(),
             "log_temperature": self.log_temperature.detach().clone(),
             "temperature_optimizer": self.temperature_optimizer.state_dict(),
-            "buffer": self.buffer.state_dict(),
+            "buffer": self.buffer.state_dict(), "n_step": self.accumulator.state_dict(),
             "counters": {"decisions": self.decisions, "gradient_steps": self.gradient_steps, "credit": self._credit,
                          "since_row": self._since_row},
         }  # fmt: skip
@@ -315,6 +364,9 @@ class SACLearner:
         with torch.no_grad():
             self.log_temperature.copy_(state["log_temperature"])
         self.buffer.load_state_dict(state["buffer"])
+        if np.isnan(self.buffer.discount[: self.buffer.size]).any():  # an old buffer: one decision each
+            self.buffer.discount[: self.buffer.size] = self.gamma
+        self.accumulator.load_state_dict(state.get("n_step", {}))
         counters = state["counters"]
         self.decisions, self.gradient_steps = int(counters["decisions"]), int(counters["gradient_steps"])
         self._credit, self._since_row = float(counters["credit"]), int(counters["since_row"])

@@ -13,6 +13,7 @@ from hrtc.distributions import BetaDistribution
 from hrtc.learner import Step
 from hrtc.policy import ActorCritic
 from hrtc.sac import (
+    NStepAccumulator,
     ReplayBuffer,
     SACConfig,
     SACLearner,
@@ -105,18 +106,52 @@ def test_the_actor_loss_never_moves_the_critics():
     target = TwinQ(4, 3, (16,))
     buffer = ReplayBuffer(100, 4, 3)
     rng = np.random.default_rng(0)
-    buffer.add(rng.normal(size=(50, 4)), rng.random((50, 3)), rng.random(50), rng.normal(size=(50, 4)), np.zeros(50))
-    losses = sac_losses(policy, critics, target, buffer.sample(32, torch.Generator().manual_seed(0)), 0.1, 0.9)
+    buffer.add(rng.normal(size=(50, 4)), rng.random((50, 3)), rng.random(50), rng.normal(size=(50, 4)), np.zeros(50),
+               np.full(50, 0.9))  # fmt: skip
+    losses = sac_losses(policy, critics, target, buffer.sample(32, torch.Generator().manual_seed(0)), 0.1)
     (losses["actor"] + losses["value"]).backward(inputs=list(policy.parameters()))
     assert all(p.grad is None for p in critics.parameters())
     assert all(p.grad is not None for p in policy.actor_head.parameters())
 
 
 # --------------------------------------------------------------------------------------------------- replay buffer
+def test_n_step_transitions_sum_discounted_rewards_and_stop_at_an_episode_end():
+    """Two envs, n = 3, gamma 0.5: env 0 runs on (its 3rd decision completes its 1st transition); env 1 ends its
+    episode (terminated) at its 2nd decision, which flushes both of its pending decisions with what they summed."""
+    acc = NStepAccumulator(3, 0.5)
+    obs = lambda t: np.array([[t, 0.0], [t, 1.0]], np.float32)  # noqa: E731  (obs = (decision, env))
+    w = np.zeros((2, 1), np.float32)
+    no = np.zeros(2, bool)
+    assert acc.push(obs(0), w, np.array([1.0, 10.0]), obs(1), no, no) is None
+    out = acc.push(obs(1), w, np.array([2.0, 20.0]), obs(2), np.array([False, True]), no)
+    o, _, ret, nxt, term, disc = out  # env 1's two decisions: 10 + 0.5 * 20, and 20
+    np.testing.assert_allclose(o[:, 0], [0, 1]) and np.testing.assert_allclose(o[:, 1], [1, 1])
+    np.testing.assert_allclose(ret, [20.0, 20.0])
+    np.testing.assert_allclose(nxt, [[2, 1], [2, 1]])
+    np.testing.assert_allclose(term, [1, 1]) and np.testing.assert_allclose(disc, [0.25, 0.5])
+    o, _, ret, nxt, term, disc = acc.push(obs(2), w, np.array([4.0, 0.0]), obs(3), no, no)
+    np.testing.assert_allclose(o, [[0, 0]])  # env 0: 1 + 0.5 * 2 + 0.25 * 4, bootstrapped from decision 3
+    np.testing.assert_allclose(ret, [3.0]) and np.testing.assert_allclose(nxt, [[3, 0]])
+    np.testing.assert_allclose(term, [0]) and np.testing.assert_allclose(disc, [0.125])
+    restored = NStepAccumulator(3, 0.5)
+    restored.load_state_dict(acc.state_dict())  # what is pending survives a checkpoint
+    assert [len(q) for q in restored.pending] == [2, 1]
+    np.testing.assert_allclose(restored.pending[0][0][0], [1, 0])
+
+
+def test_one_step_transitions_are_the_decisions_themselves():
+    acc = NStepAccumulator(1, 0.9)
+    o, w, r, nxt, term, disc = acc.push(np.ones((2, 3)), np.ones((2, 2)), np.array([1.0, 2.0]), np.zeros((2, 3)),
+                                        np.array([False, True]), np.array([True, False]))  # fmt: skip
+    np.testing.assert_allclose(r, [1, 2]) and np.testing.assert_allclose(term, [0, 1])
+    np.testing.assert_allclose(disc, [0.9, 0.9])
+
+
 def test_replay_buffer_wraps_around_and_keeps_the_newest():
     buffer = ReplayBuffer(5, 1, 1)
     for i in range(7):  # 7 single transitions into 5 places: 0 and 1 are overwritten
-        buffer.add(np.full((1, 1), i), np.full((1, 1), i), np.array([i]), np.full((1, 1), i + 1), np.array([0.0]))
+        buffer.add(np.full((1, 1), i), np.full((1, 1), i), np.array([i]), np.full((1, 1), i + 1), np.array([0.0]),
+                   np.array([0.9]))  # fmt: skip
     assert len(buffer) == 5 and buffer.position == 2
     assert sorted(buffer.rewards.tolist()) == [2, 3, 4, 5, 6]
     state = buffer.state_dict()
@@ -130,7 +165,7 @@ def test_replay_buffer_samples_whole_transitions_uniformly():
     buffer = ReplayBuffer(10, 2, 1)
     rng = np.random.default_rng(0)
     obs = rng.normal(size=(4, 2)).astype(np.float32)
-    buffer.add(obs, obs[:, :1], obs[:, 0], obs + 1, np.array([0, 1, 0, 1]))
+    buffer.add(obs, obs[:, :1], obs[:, 0], obs + 1, np.array([0, 1, 0, 1]), np.full(4, 0.9))
     batch = buffer.sample(4000, torch.Generator().manual_seed(0))
     np.testing.assert_array_equal(batch.next_obs.numpy(), batch.obs.numpy() + 1)  # rows stay together
     np.testing.assert_array_equal(batch.rewards.numpy(), batch.obs[:, 0].numpy())
