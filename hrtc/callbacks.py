@@ -10,8 +10,8 @@ The trainer (:class:`hrtc.trainer.Trainer`) calls every callback at four points:
 - ``on_end(run, interrupted)`` once, in reverse order, however the run ends (``interrupted``: Ctrl-C or SIGTERM,
   after the trainer rewound its counters to the last point with nothing pending).
 
-``run`` is the trainer as a :class:`Run`: its counters, its evaluation results and ``save``. Each callback gets its
-own piece of the config when it is built.
+``run`` is the trainer as a :class:`Run`: its counters, its evaluation results, its vector env and ``save``. Each
+callback gets its own piece of the config when it is built.
 """
 
 from __future__ import annotations
@@ -53,6 +53,7 @@ class Run(Protocol):
     episodes: int
     best_eval: float
     last_eval: float
+    vec: Any  # the training vector env while the run trains (its ``restarts``: hrtc.vector.RestartingVectorEnv)
 
     @property
     def finished(self) -> bool: ...
@@ -90,40 +91,50 @@ def next_multiple(step: int, every: int) -> int:
 
 # --------------------------------------------------------------------------------------------------- skill faults
 class SkillFaults(BaseCallback):
-    """Lifetime faults and calls of each skill, summed over the training envs (read from the composed envs' info)."""
+    """Lifetime faults and calls of each skill, summed over the training envs (read from the composed envs' info).
+    A replaced vector-env worker's skills count from zero (``info["worker_restarted"]``): the dead one's stay in the
+    totals."""
 
     def __init__(self, skill_names: Sequence[str], num_envs: int) -> None:
         self.skill_names = tuple(skill_names)
         self.faults = np.zeros((num_envs, len(self.skill_names)))
         self.calls = np.zeros((num_envs, len(self.skill_names)))
+        self.lost_faults, self.lost_calls = np.zeros_like(self.faults), np.zeros_like(self.calls)  # of dead workers
 
     def on_step(self, run: Run, step: Transition) -> None:
         info = step.info
+        if "worker_restarted" in info:
+            lost = info["_worker_restarted"]
+            self.lost_faults[lost] += self.faults[lost]
+            self.lost_calls[lost] += self.calls[lost]
+            self.faults[lost], self.calls[lost] = 0.0, 0.0
         if "skill_faults" in info:
             mask = info.get("_skill_faults", np.ones(len(self.faults), bool))
             self.faults[mask], self.calls[mask] = info["skill_faults"][mask], info["skill_calls"][mask]
 
     def totals(self) -> tuple[np.ndarray, np.ndarray]:
         """(faults, calls) per skill, (K,) each."""
-        return self.faults.sum(0), self.calls.sum(0)
+        return (self.faults + self.lost_faults).sum(0), (self.calls + self.lost_calls).sum(0)
 
 
 # --------------------------------------------------------------------------------------------------- metrics
-# train.csv: these, with the learner's own columns after the first two and each skill's fault count at the end.
+# train.csv: these, with the learner's own columns after the first two, then each skill's fault count and the
+# vector-env worker restarts.
 TRAIN_COLUMNS = ("episodes", "train/episode_reward", "charts/SPS", "charts/rollout_SPS", "charts/update_seconds")
 EVAL_COLUMNS = ("episode_reward", "episode_reward_std", "episodes", "train_episodes", "wall_seconds")
 
 
 def csv_columns(learner_columns: Sequence[str], skill_names: Sequence[str]) -> dict[str, tuple[str, ...]]:
     """The columns of ``train.csv`` and ``eval.csv`` (after ``step``) that :class:`MetricsLog` fills."""
-    faults = (f"faults/{name}" for name in skill_names)
+    faults = (*(f"faults/{name}" for name in skill_names), "faults/worker_restarts")
     return {"train": (*TRAIN_COLUMNS[:2], *learner_columns, *TRAIN_COLUMNS[2:], *faults), "eval": EVAL_COLUMNS}
 
 
 class MetricsLog(BaseCallback):
     """Rows of metrics to the sinks (``train.csv``, ``eval.csv``, a recording...): the learner's ``train.csv`` rows
-    with the episodes, the mean return of the episodes ended since the last row, the throughput, the update time and
-    each skill's faults (from ``faults``) added. :meth:`write` takes any other stream's rows. Closes the sinks."""
+    with the episodes, the mean return of the episodes ended since the last row, the throughput, the update time,
+    each skill's faults (from ``faults``) and the vector env's worker restarts (``run.vec.restarts``) added.
+    :meth:`write` takes any other stream's rows. Closes the sinks."""
 
     def __init__(self, sinks: Sequence[Sink], faults: SkillFaults | None = None) -> None:
         self.sinks, self.faults = list(sinks), faults
@@ -153,6 +164,7 @@ class MetricsLog(BaseCallback):
         if self.faults is not None:
             faults, _ = self.faults.totals()
             stats.update({f"faults/{s}": float(f) for s, f in zip(self.faults.skill_names, faults, strict=True)})
+        stats["faults/worker_restarts"] = float(getattr(getattr(run, "vec", None), "restarts", 0))
         self.write("train", run.global_step, stats)
         self.returns.clear()
         self.row_start, self.row_step, self.update_seconds = time.perf_counter(), run.global_step, 0.0

@@ -46,6 +46,7 @@ class RunConfig:
     init_from: str | None = None
     max_skill_fault_rate: float = 0.05
     max_skipped_updates: int = 3
+    max_worker_restarts: int = 5  # vector-env workers replaced when they die (hrtc.vector); the next death stops
     solve_threshold: float | None = None
     env_kwargs: Mapping[str, Any] = field(default_factory=dict)
     ppo: PPOConfig = field(default_factory=PPOConfig)
@@ -75,6 +76,9 @@ class RunConfig:
         for name, value in positive.items():
             if not isinstance(value, int) or isinstance(value, bool) or value < 1:
                 raise ConfigError(f"{name} must be a positive integer, got {value!r}")
+        if not isinstance(self.max_worker_restarts, int) or isinstance(self.max_worker_restarts, bool) \
+                or self.max_worker_restarts < 0:  # fmt: skip
+            raise ConfigError(f"max_worker_restarts must be a non-negative integer, got {self.max_worker_restarts!r}")
         if not 0.0 <= self.max_skill_fault_rate <= 1.0:
             raise ConfigError(f"max_skill_fault_rate must be in [0, 1], got {self.max_skill_fault_rate}")
         if not 0.0 < self.ppo.learning_rate < 1.0:

@@ -14,6 +14,7 @@ import gymnasium as gym
 import numpy as np
 
 from hrtc.composition import ComposedEnv, build_library
+from hrtc.vector import RestartingVectorEnv
 
 
 def make_env(task: str, algo: str, skills: Mapping[str, Any], action_filter: str = "sum",
@@ -37,13 +38,15 @@ def env_factory(cfg: Any) -> Callable[[], gym.Env]:
     )
 
 
-def vector_env(make: Callable[[], gym.Env], num_envs: int, mode: str = "async") -> gym.vector.VectorEnv:
+def vector_env(make: Callable[[], gym.Env], num_envs: int, mode: str = "async",
+               max_restarts: int = 5) -> gym.vector.VectorEnv:  # fmt: skip
     """``num_envs`` copies of ``make()`` stepped together, in worker processes (``async``, more than one env) or in
-    this process (``sync``); an ended episode resets in the same step (its final observation in ``info``)."""
+    this process (``sync``); an ended episode resets in the same step (its final observation in ``info``). A worker
+    that dies is replaced, up to ``max_restarts`` times (:class:`~hrtc.vector.RestartingVectorEnv`)."""
     fns = [make for _ in range(num_envs)]
     autoreset = gym.vector.AutoresetMode.SAME_STEP
     if mode == "async" and num_envs > 1:
-        return gym.vector.AsyncVectorEnv(fns, autoreset_mode=autoreset, context="fork")
+        return RestartingVectorEnv(fns, max_restarts, context="fork")
     return gym.vector.SyncVectorEnv(fns, autoreset_mode=autoreset)
 
 

@@ -39,3 +39,7 @@ class SkillError(HRTCError):
 
 class RunLockedError(HRTCError):
     """A run directory is being written by another live process (see :mod:`hrtc.runlock`)."""
+
+
+class WorkerError(HRTCError):
+    """Vector-env workers died more often than allowed (see :class:`hrtc.vector.RestartingVectorEnv`)."""

@@ -36,7 +36,7 @@ from hrtc.callbacks import (
 from hrtc.checkpoint import load_checkpoint, load_policy_weights, plain, rng_state, save_checkpoint, set_rng_state
 from hrtc.config import RunConfig
 from hrtc.environments import env_factory, frame_source, no_update, step_while, timed, vector_env
-from hrtc.errors import CheckpointError
+from hrtc.errors import CheckpointError, WorkerError
 from hrtc.learner import Step, build_learner
 from hrtc.logging import CsvSink, Sink
 from hrtc.normalize import ObsNormalizer, RewardScaler, normalize_obs
@@ -135,7 +135,7 @@ class Trainer:
         and the wall time. Callbacks act at every point where the learner holds nothing pending; an interrupted run
         is rewound to the last such point, so that its checkpoint redoes an interrupted PPO rollout on resume."""
         cfg, learner, n = self.cfg, self.learner, self.cfg.num_envs
-        vec = vector_env(env_factory(cfg), n, cfg.vector)
+        self.vec = vec = vector_env(env_factory(cfg), n, cfg.vector, cfg.max_worker_restarts)
         self._start, self.last_eval, self.ep_return = time.perf_counter(), float("nan"), np.zeros(n)
         committed, interrupted, stop = (self.global_step, self.episodes), False, False
         try:
@@ -154,6 +154,10 @@ class Trainer:
             self.global_step, self.episodes = committed
             interrupted = True
             raise
+        except WorkerError as error:  # workers died past max_worker_restarts: saved as on an interrupt, one line
+            self.global_step, self.episodes = committed
+            self.save()
+            raise WorkerError(f"{error}; the run is saved at step {self.global_step}") from None
         finally:
             try:
                 for callback in reversed(self.callbacks):

@@ -131,7 +131,7 @@ def blueprint(logged: Collection[str], skill_names: Sequence[str], key_state: st
         series("evaluation return", _EVAL_RETURNS, windowed=False),
         series("evaluation episode length", ["eval/episode/length"], windowed=False),
         *[series(name, paths, windowed=False) for name, paths in _TRAIN_GROUPS.items()],
-        series("skill faults (count)", [p for p in train if p.startswith("train/faults/")], windowed=False),
+        series("faults (count)", [p for p in train if p.startswith("train/faults/")], windowed=False),  # + workers
         *[series(_TRAIN_NAMES.get(p, p.removeprefix("train/losses/").removeprefix("train/")), [p], windowed=False)
           for p in train if p not in grouped and not p.startswith("train/faults/")],
     )  # fmt: skip

@@ -88,6 +88,18 @@ def test_skill_faults_keeps_each_envs_lifetime_counts_and_sums_them():
     np.testing.assert_array_equal(faults.totals()[0], [5, 5])
 
 
+def test_skill_faults_of_a_replaced_worker_stay_in_the_totals():
+    faults, run = SkillFaults(("a",), num_envs=2), FakeRun()
+    faults.on_step(run, step(info=fault_info([[3], [1]], [[30], [10]])))
+    # Env 0's worker died: its fresh worker's skills count from zero; the dead one's 3 of 30 stay counted.
+    restarted = {"worker_restarted": np.array([True, False]), "_worker_restarted": np.array([True, False])}
+    faults.on_step(run, step(info=restarted))
+    np.testing.assert_array_equal(faults.totals()[0], [4])
+    faults.on_step(run, step(info=fault_info([[1], [2]], [[5], [20]])))
+    np.testing.assert_array_equal(faults.totals()[0], [6])
+    np.testing.assert_array_equal(faults.totals()[1], [55])
+
+
 # --------------------------------------------------------------------------------------------------- metrics
 def test_metrics_log_writes_a_train_row_only_when_one_is_due_with_what_happened_since_the_last():
     sink, faults, run = ListSink(), SkillFaults(("a",), 1), FakeRun()
@@ -104,10 +116,12 @@ def test_metrics_log_writes_a_train_row_only_when_one_is_due_with_what_happened_
     ((stream, at, row),) = sink.rows
     assert (stream, at) == ("train", 200)
     assert row["losses/value_loss"] == 1.0 and row["episodes"] == 3 and row["faults/a"] == 2.0
+    assert row["faults/worker_restarts"] == 0.0  # a run without a restarting vector env
     assert row["train/episode_reward"] == 20.0 and row["charts/update_seconds"] == 0.75
     assert row["charts/SPS"] > 0 and row["charts/rollout_SPS"] >= row["charts/SPS"]
-    run.global_step = 400
+    run.global_step, run.vec = 400, type("Vec", (), {"restarts": 2})()
     log.on_update(run, {"losses/value_loss": 2.0})  # no episode ended since: no training return
+    assert sink.rows[-1][2]["faults/worker_restarts"] == 2.0
     assert np.isnan(sink.rows[-1][2]["train/episode_reward"]) and sink.rows[-1][2]["charts/update_seconds"] == 0.0
     log.write("eval", 400, {"episode_reward": 1.0})
     assert sink.rows[-1] == ("eval", 400, {"episode_reward": 1.0})
