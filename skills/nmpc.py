@@ -408,7 +408,8 @@ class UprightMPC:
         k2 = f(s + 0.5 * h * k1)
         k3 = f(s + 0.5 * h * k2)
         k4 = f(s + h * k3)
-        return casadi.Function("upright_rk4", [s, u], [s + h / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)], ["s", "u"], ["s_next"])
+        s_next = s + h / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
+        return casadi.Function("upright_rk4", [s, u], [s_next], ["s", "u"], ["s_next"])
 
     def _build_solver(self) -> None:
         n, w, p, nq = self.horizon, self.weights, self.params, self._nq
