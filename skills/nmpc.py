@@ -321,3 +321,199 @@ def _slider_range(mj_model: Any) -> np.ndarray:
     if slider < 0 or not mj_model.jnt_limited[slider]:
         raise ConfigError("the model's slider joint is missing or has no range: cannot bound the cart position")
     return np.asarray(mj_model.jnt_range[slider], dtype=np.float64)
+
+
+class UprightMPC:
+    """Nonlinear MPC towards upright for dm_control's pendulum or acrobot: direct multiple shooting.
+
+    Problem over ``k = 0..N-1`` (``N = horizon``), model step ``dt`` s (RK4 of the rigid-body equations of
+    ``skills.pendulum_model`` or ``skills.acrobot_model``, with the MuJoCo model's own masses, lengths, inertias and
+    damping), ``a_i`` the links' absolute angles from upright (the pendulum's ``theta``; the acrobot's ``q1`` and
+    ``q1 + q2``), ``v`` the joint velocities:
+        min  sum_k  w_angle sum_i (1 - cos a_ik) + w_velocity |v_k|^2 + w_control u_k^2
+             + w_terminal sum_i (1 - cos a_iN) + w_velocity |v_N|^2
+        s.t. s_0 = state, s_{k+1} = RK4(s_k, u_k), u_k in ctrlrange.
+    ``1 - cos`` makes the cost blind to whole turns, so the measured angles' wrapping at +-pi is harmless. CasADi's
+    SQP method with the ``qrqp`` QP solver, warm-started from the previous plan shifted by one step.
+
+    On the pendulum a 1.6 s horizon swings up and balances: a whole skill on its own. On the acrobot a short horizon
+    is a catch near upright (the torque limit leaves the linear balance a tiny basin), not a swing-up.
+
+    Meant to be re-solved every ``dt`` seconds with its action held in between (``every`` in the task config).
+    Info: ``solve_ms`` (wall time of the solve, ms), ``status`` (0 converged, 1 stopped at ``max_iter``: its plan is
+    still used), ``iterations``, ``cost``.
+    """
+
+    def __init__(
+        self,
+        model: str | Any = "pendulum_swingup",
+        dt: float = 0.04,
+        horizon: int = 40,
+        w_angle: float = 10.0,
+        w_velocity: float = 0.1,
+        w_control: float = 0.1,
+        w_terminal: float = 50.0,
+        max_iter: int = 10,
+    ) -> None:
+        if not (np.isfinite(dt) and dt > 0.0):
+            raise ConfigError(f"dt must be a positive number of seconds, got {dt!r}")
+        for name, value in (("horizon", horizon), ("max_iter", max_iter)):
+            if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1:
+                raise ConfigError(f"{name} must be an integer >= 1, got {value!r}")
+        weights = {"w_angle": w_angle, "w_velocity": w_velocity, "w_control": w_control, "w_terminal": w_terminal}
+        for name, value in weights.items():
+            if not (np.isfinite(value) and value >= 0.0):
+                raise ConfigError(f"{name} must be a finite number >= 0, got {value!r}")
+        if w_control <= 0.0:
+            raise ConfigError(f"w_control must be > 0, got {w_control!r}")
+        if w_angle + w_terminal <= 0.0:
+            raise ConfigError("w_angle and w_terminal are both 0: nothing asks for upright")
+        import envs
+        from skills.acrobot_model import AcrobotParams
+        from skills.pendulum_model import PendulumParams
+
+        mj_model = envs.mj_model(model)
+        self.params: Any
+        if mj_model.nv == 1:
+            plant, self.state_keys = PendulumParams, ("pole_angle", "pole_angular_velocity")
+        else:
+            plant = AcrobotParams
+            self.state_keys = ("shoulder_angle", "elbow_angle", "shoulder_velocity", "elbow_velocity")
+        try:
+            self.params = plant.from_mj_model(mj_model)
+        except (ValueError, AttributeError, TypeError) as error:
+            raise ConfigError(f"model must be dm_control's pendulum or acrobot: {error}") from None
+        self._nq = len(self.state_keys) // 2
+        self.dt, self.horizon, self.max_iter = float(dt), int(horizon), int(max_iter)
+        self.weights = {k: float(v) for k, v in weights.items()}
+        self.step = self._rk4()
+        self._build_solver()
+        self._warm: dict[str, np.ndarray] | None = None
+        self._plan: np.ndarray | None = None
+        self._plan_index = 0
+
+    def _rk4(self) -> casadi.Function:
+        """``F(s, u) -> s_next``: one ZOH step of ``dt`` s; s = ``[angles (rad), velocities (rad/s)]`` as ordered
+        by ``state_keys``."""
+        nq = self._nq
+        s, u = casadi.MX.sym("s", 2 * nq), casadi.MX.sym("u")
+
+        def f(z: Any) -> Any:
+            if nq == 1:
+                return casadi.vertcat(z[1], self.params.acceleration(z[0], z[1], u, math=casadi))
+            return casadi.vertcat(z[2], z[3], *self.params.accelerations(z[0], z[1], z[2], z[3], u, math=casadi))
+
+        h = self.dt
+        k1 = f(s)
+        k2 = f(s + 0.5 * h * k1)
+        k3 = f(s + 0.5 * h * k2)
+        k4 = f(s + h * k3)
+        s_next = s + h / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
+        return casadi.Function("upright_rk4", [s, u], [s_next], ["s", "u"], ["s_next"])
+
+    def _build_solver(self) -> None:
+        n, w, p, nq = self.horizon, self.weights, self.params, self._nq
+        nx = 2 * nq
+        s0 = casadi.MX.sym("s0", nx)
+        states = casadi.MX.sym("S", nx, n + 1)
+        controls = casadi.MX.sym("U", 1, n)
+        propagated = self.step.map(n)(states[:, :n], controls)
+        # absolute link angles from upright, (nq, N+1)
+        angles = states[:1, :] if nq == 1 else casadi.vertcat(states[0, :], states[0, :] + states[1, :])
+        tilt = casadi.sum1(1.0 - casadi.cos(angles))  # (1, N+1)
+        cost = (
+            w["w_angle"] * casadi.sum2(tilt[:n])
+            + w["w_velocity"] * casadi.sumsqr(states[nq:, :])
+            + w["w_control"] * casadi.sumsqr(controls)
+            + w["w_terminal"] * tilt[n]
+        )
+        gaps = casadi.vertcat(states[:, 0] - s0, casadi.vec(states[:, 1:] - propagated))
+        self._n_states, self._n_decision = nx * (n + 1), nx * (n + 1) + n
+        self._lbx = np.concatenate([np.full(self._n_states, -np.inf), np.full(n, p.control_min)])
+        self._ubx = np.concatenate([np.full(self._n_states, np.inf), np.full(n, p.control_max)])
+        self._n_constraints = int(gaps.numel())
+        options = {
+            "qpsol": "qrqp",
+            "convexify_strategy": "eigen-clip",  # the cosine cost is not convex: keep the QPs convex
+            "max_iter": self.max_iter,
+            "expand": True,
+            "print_time": False,
+            "show_eval_warnings": False,
+            "print_header": False,
+            "print_iteration": False,
+            "print_status": False,
+            "error_on_fail": False,
+            "qpsol_options": {"print_iter": False, "print_header": False, "print_info": False, "error_on_fail": False},
+        }
+        nlp = {"x": casadi.vertcat(casadi.vec(states), casadi.vec(controls)), "p": s0, "f": cost, "g": gaps}
+        self._solver = casadi.nlpsol("upright_mpc", "sqpmethod", nlp, options)
+
+    @property
+    def plan(self) -> np.ndarray | None:
+        """Controls of the last converged solve, (N,); None before the first one or after a reset."""
+        return None if self._plan is None else self._plan.copy()
+
+    def reset(self, rng: np.random.Generator) -> None:
+        """Forget the warm start and the fallback plan. ``rng`` is unused: the skill is deterministic."""
+        self._warm, self._plan, self._plan_index = None, None, 0
+
+    def _initial_guess(self, state: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        n = self.horizon
+        if self._warm is None:
+            # a pump-like guess: torque along the motion (away from hanging at rest, where every gradient is zero)
+            velocity = state[-1]  # the driven joint's
+            direction = np.sign(velocity) if velocity != 0.0 else 1.0
+            controls = np.full(n, 0.5 * direction * self.params.control_max)
+            states = np.tile(state, (n + 1, 1))
+            return np.concatenate([states.ravel(), controls]), np.zeros(self._n_decision), np.zeros(self._n_constraints)
+        nx = 2 * self._nq
+        w, lam_x, lam_g = self._warm["x"], self._warm["lam_x"], self._warm["lam_g"]
+        x0 = np.concatenate([_shift(w[: self._n_states], nx), _shift(w[self._n_states :], 1)])
+        for i in range(self._nq):  # the measured angles are wrapped: move the guess by whole turns to agree
+            x0[i : self._n_states : nx] += 2.0 * np.pi * np.round((state[i] - x0[i]) / (2.0 * np.pi))
+        x0[:nx] = state
+        lam_x0 = np.concatenate([_shift(lam_x[: self._n_states], nx), _shift(lam_x[self._n_states :], 1)])
+        return x0, lam_x0, _shift(lam_g, nx)
+
+    def act(self, state: np.ndarray) -> SkillOutput:
+        """Solve from ``state`` (ordered as ``state_keys``: angles in rad, then velocities in rad/s); propose its
+        first control (1,). A failed solve falls back on the previous plan's next control, else on zero."""
+        state = np.asarray(state, dtype=np.float64)
+        if state.shape != (2 * self._nq,):
+            raise ShapeError(f"UprightMPC expects a state of shape ({2 * self._nq},) ordered as {self.state_keys}, "
+                             f"got {state.shape}")  # fmt: skip
+        if not np.all(np.isfinite(state)):
+            return self._fallback(STATUS_NONFINITE_STATE, 0.0, 0)
+        x0, lam_x0, lam_g0 = self._initial_guess(state)
+        start = time.perf_counter()
+        try:
+            result = self._solver(x0=x0, p=state, lbx=self._lbx, ubx=self._ubx, lbg=0.0, ubg=0.0, lam_x0=lam_x0,
+                                  lam_g0=lam_g0)  # fmt: skip
+        except RuntimeError:
+            self._warm = None
+            return self._fallback(STATUS_NONFINITE_SOLUTION, 1e3 * (time.perf_counter() - start), 0)
+        solve_ms = 1e3 * (time.perf_counter() - start)
+        try:
+            stats = self._solver.stats()
+        except RuntimeError:  # seen after a failed QP: CasADi cannot build its status string
+            stats = {}
+        iterations = int(stats.get("iter_count", 0))
+        w, lam_x, lam_g = (np.asarray(result[k]).ravel() for k in ("x", "lam_x", "lam_g"))
+        if not (np.all(np.isfinite(w)) and np.all(np.isfinite(lam_x)) and np.all(np.isfinite(lam_g))):
+            self._warm = None
+            return self._fallback(STATUS_NONFINITE_SOLUTION, solve_ms, iterations)
+        self._warm = {"x": w, "lam_x": lam_x, "lam_g": lam_g}
+        controls = np.clip(w[self._n_states :], self.params.control_min, self.params.control_max)
+        # an SQP stopped at max_iter still holds a feasible, improving plan: use it, but report it
+        status = STATUS_OK if stats.get("success", False) else STATUS_NOT_CONVERGED
+        self._plan, self._plan_index = controls, 1
+        info = {"solve_ms": solve_ms, "status": float(status), "iterations": float(iterations),
+                "cost": float(result["f"])}  # fmt: skip
+        return SkillOutput(controls[:1].copy(), info)
+
+    def _fallback(self, status: int, solve_ms: float, iterations: int) -> SkillOutput:
+        u = 0.0
+        if self._plan is not None and self._plan_index < len(self._plan):
+            u, self._plan_index = float(self._plan[self._plan_index]), self._plan_index + 1
+        info = {"solve_ms": solve_ms, "status": float(status), "iterations": float(iterations), "cost": 0.0}
+        return SkillOutput(np.array([u]), info)

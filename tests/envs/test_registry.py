@@ -10,6 +10,7 @@ from hrtc.errors import UnknownNameError
 
 TASKS = [name for name in envs.names() if not name.startswith("test_")]
 CARTPOLES = [name for name in TASKS if name.startswith("cartpole")]  # dm_control cart-poles: time limits, physics
+DM_CONTROL = [*CARTPOLES, "acrobot_swingup", "pendulum_swingup"]  # the tasks through envs.dm_control_env
 
 
 def _actions(env, n, seed=0):
@@ -19,8 +20,8 @@ def _actions(env, n, seed=0):
     return [rng.uniform(space.low, space.high).astype(space.dtype) for _ in range(n)]
 
 
-def test_registry_lists_the_cartpole_tasks():
-    assert {"cartpole_swingup", "cartpole_balance"} <= set(envs.names())
+def test_registry_lists_the_dm_control_tasks():
+    assert {"cartpole_swingup", "cartpole_balance", "acrobot_swingup", "pendulum_swingup"} <= set(envs.names())
 
 
 def test_unknown_task_names_the_valid_ones():
@@ -66,9 +67,10 @@ def test_same_seed_same_episode_different_seed_different_start(task):
     assert not np.array_equal(rollout(3)[0], rollout(4)[0])
 
 
-@pytest.mark.parametrize("task", CARTPOLES)
+@pytest.mark.parametrize("task", DM_CONTROL)
 def test_time_limit_is_truncation_not_termination(task):
-    env = envs.make(task, time_limit=0.1)  # 10 steps of 0.01 s
+    env = envs.make(task)
+    env = envs.make(task, time_limit=10 * env.unwrapped.dt)  # 10 steps
     env.reset(seed=0)
     flags = [env.step(np.zeros(1, np.float32))[2:4] for _ in range(10)]
     assert flags[-1] == (False, True) and all(f == (False, False) for f in flags[:-1])
@@ -113,3 +115,50 @@ def test_render_gives_an_rgb_frame():
     frame = env.render()
     assert frame.shape == (48, 64, 3) and frame.dtype == np.uint8 and frame.std() > 0
     env.close()
+
+
+def test_acrobot_state_names_physical_quantities():
+    env = envs.make("acrobot_swingup")
+    physics = env.unwrapped.physics
+    for seed in range(5):
+        env.reset(seed=seed)
+        for action in _actions(env, 20, seed):
+            env.step(action)
+        state = env.unwrapped.skill_state()
+        q1, q2 = state["shoulder_angle"][0], state["elbow_angle"][0]
+        assert -np.pi < q1 <= np.pi and -np.pi < q2 <= np.pi
+        # the links' world z axes: upper at q1 from upright, lower at q1 + q2 (both hinges about +y)
+        assert np.cos(q1) == pytest.approx(physics.named.data.xmat["upper_arm", "zz"], abs=1e-9)
+        assert np.sin(q1) == pytest.approx(physics.named.data.xmat["upper_arm", "xz"], abs=1e-9)
+        assert np.sin(q1 + q2) == pytest.approx(physics.named.data.xmat["lower_arm", "xz"], abs=1e-9)
+        np.testing.assert_array_equal(state["shoulder_velocity"], physics.data.qvel[:1])
+        np.testing.assert_array_equal(state["elbow_velocity"], physics.data.qvel[1:])
+        tip = np.array([np.sin(q1) + np.sin(q1 + q2), 2.0 + np.cos(q1) + np.cos(q1 + q2)])  # (x, z), m
+        assert state["tip_distance"][0] == pytest.approx(np.hypot(tip[0], tip[1] - 4.0), abs=1e-9)
+
+
+def test_pendulum_state_names_physical_quantities():
+    env = envs.make("pendulum_swingup")
+    physics = env.unwrapped.physics
+    for seed in range(5):
+        env.reset(seed=seed)
+        for action in _actions(env, 20, seed):
+            env.step(action)
+        state = env.unwrapped.skill_state()
+        angle = state["pole_angle"][0]
+        assert -np.pi < angle <= np.pi
+        assert np.cos(angle) == pytest.approx(physics.named.data.xmat["pole", "zz"], abs=1e-9)
+        assert np.sin(angle) == pytest.approx(physics.named.data.xmat["pole", "xz"], abs=1e-9)
+        np.testing.assert_array_equal(state["pole_angular_velocity"], physics.data.qvel)
+
+
+@pytest.mark.parametrize("task", ["acrobot_swingup", "pendulum_swingup"])
+def test_swingup_tasks_start_at_random_angles_at_rest(task):
+    env = envs.make(task)
+    starts = []
+    for seed in range(20):
+        env.reset(seed=seed)
+        starts.append(env.unwrapped.physics.data.qpos.copy())
+        np.testing.assert_array_equal(env.unwrapped.physics.data.qvel, 0.0)
+    starts = np.array(starts)
+    assert np.all(np.abs(starts) <= np.pi) and np.ptp(starts[:, 0]) > np.pi  # spread over the circle
