@@ -155,7 +155,7 @@ def test_the_untrained_blend_reaches_upright_from_hanging() -> None:
     """Where a fresh Beta meta-policy starts (every weight 0.5) must earn some reward, or an off-policy learner sees
     none to learn from: with the balance's angle error as sin it damped every blend's swing and this scored 0."""
     from hrtc.cli import task_config
-    from hrtc.trainer import make_env
+    from hrtc.environments import make_env
 
     task = task_config("pendulum_swingup")
     env = make_env("pendulum_swingup", "hrtc", task["skills"], decision_every=2)  # the task's decision rate
