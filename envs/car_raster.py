@@ -364,9 +364,7 @@ class CarRaster:
         text_cache: distinct reward texts kept.
     """
 
-    def __init__(
-        self, grey: bool = False, samples: int = 3, text_cache: int = 512, channel: int | None = None
-    ) -> None:
+    def __init__(self, grey: bool = False, samples: int = 3, text_cache: int = 512, channel: int | None = None) -> None:
         if samples < 1:
             raise ValueError(f"samples must be >= 1, got {samples}")
         if channel is not None and channel not in (0, 1, 2):
