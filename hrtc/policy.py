@@ -12,6 +12,12 @@ import torch
 from torch import nn
 
 from hrtc.distributions import BetaDistribution, NormalDistribution, make_head
+from hrtc.errors import UnknownNameError
+
+ACTIVATIONS: dict[str, type[nn.Module]] = {"tanh": nn.Tanh, "relu": nn.ReLU}
+# orthogonal: CleanRL's (gain sqrt 2 hidden, 1 value output, 0.01 distribution head, zero biases); torch: PyTorch's
+# default Linear init (uniform in +-1/sqrt(fan_in), weights and biases), as the reference CarRacing code leaves it.
+WEIGHT_INITS = ("orthogonal", "torch")
 
 
 def mlp(in_dim: int, hidden: Sequence[int], activation: type[nn.Module] = nn.Tanh) -> nn.Sequential:
@@ -41,6 +47,9 @@ class ActorCritic(nn.Module):
         normal_init_mean, normal_init_log_std: the Normal head's starting point (in the sample's units).
         beta_init_bias: the Beta head's starting bias (see :class:`~hrtc.distributions.BetaHead`).
         encoder: a module mapping (batch, obs_dim) to (batch, encoder.out_dim) features, or None.
+        activation: the MLPs' hidden activation, ``tanh`` or ``relu`` (the reference CarRacing network's).
+        weight_init: the MLPs' and heads' initialisation, ``orthogonal`` or ``torch`` (:data:`WEIGHT_INITS`; with
+            ``torch`` the Beta head's ``init_bias`` is not applied); the encoder initialises itself.
     """
 
     def __init__(
@@ -53,22 +62,34 @@ class ActorCritic(nn.Module):
         normal_init_log_std: float = 0.0,
         beta_init_bias: float = 0.0,
         encoder: nn.Module | None = None,
+        activation: str = "tanh",
+        weight_init: str = "orthogonal",
     ) -> None:
         super().__init__()
+        if activation not in ACTIVATIONS:
+            raise UnknownNameError("activation", activation, tuple(ACTIVATIONS))
+        if weight_init not in WEIGHT_INITS:
+            raise UnknownNameError("weight_init", weight_init, WEIGHT_INITS)
         self.obs_dim, self.out_dim, self.dist_kind = obs_dim, out_dim, dist
         self.encoder = encoder
         self._features_cache: tuple | None = None
         if encoder is not None:
             obs_dim = int(encoder.out_dim)  # the MLPs read the encoder's features
-        self.actor_body = mlp(obs_dim, hidden)
+        act = ACTIVATIONS[activation]
+        self.actor_body = mlp(obs_dim, hidden, act)
         if dist == "normal":
             kwargs = {"init_mean": normal_init_mean, "init_log_std": normal_init_log_std}
         else:
             kwargs = {"init_bias": beta_init_bias}
         self.actor_head = make_head(dist, hidden[-1] if hidden else obs_dim, out_dim, **kwargs)
-        self.critic = nn.Sequential(mlp(obs_dim, hidden), nn.Linear(hidden[-1] if hidden else obs_dim, 1))
+        self.critic = nn.Sequential(mlp(obs_dim, hidden, act), nn.Linear(hidden[-1] if hidden else obs_dim, 1))
         nn.init.orthogonal_(self.critic[-1].weight, gain=1.0)
         nn.init.zeros_(self.critic[-1].bias)
+        if weight_init == "torch":
+            for part in (self.actor_body, self.actor_head, self.critic):
+                for module in part.modules():
+                    if isinstance(module, nn.Linear):
+                        module.reset_parameters()
 
     def distribution(self, obs: torch.Tensor) -> BetaDistribution | NormalDistribution:
         """The meta-policy's distribution for ``obs`` (batch, obs_dim)."""

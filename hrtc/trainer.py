@@ -43,7 +43,9 @@ ALGOS = ("hrtc", "ppo")
 DISTS = ("beta", "normal")
 LEARNERS = ("ppo", "sac")
 # train.csv: these, with the learner's own columns after the first two and each skill's fault count at the end.
-TRAIN_COLUMNS = ("episodes", "train/episode_reward", "charts/SPS", "charts/rollout_SPS", "charts/update_seconds")
+# train/true_episode_reward: the task's own return where the env shapes its reward (info["true_reward"]).
+TRAIN_COLUMNS = ("episodes", "train/episode_reward", "train/true_episode_reward", "charts/SPS", "charts/rollout_SPS",
+                 "charts/update_seconds")  # fmt: skip
 EVAL_COLUMNS = ("episode_reward", "episode_reward_std", "episodes", "train_episodes", "wall_seconds")
 
 
@@ -64,6 +66,8 @@ class RunConfig:
     num_envs: int = 2
     vector: str = "async"
     hidden: tuple[int, ...] = (64, 64)
+    activation: str = "tanh"  # the actor and critic MLPs' (hrtc.policy.ACTIVATIONS)
+    weight_init: str = "orthogonal"  # the MLPs' and heads' (hrtc.policy.WEIGHT_INITS)
     eval_every: int = 5_000
     eval_episodes: int = 3
     checkpoint_every: int = 10_000
@@ -196,7 +200,7 @@ def policy_for(cfg: RunConfig, obs_dim: int, space: gym.spaces.Box) -> ActorCrit
     log_std = float(np.log(np.mean(space.high - space.low) / 4))  # std a quarter of the range
     encoder = build_encoder(cfg.encoder, obs_dim) if cfg.encoder is not None else None
     return ActorCritic(obs_dim, int(space.shape[0]), cfg.dist, cfg.hidden, centre, log_std, cfg.beta_init_bias,
-                       encoder=encoder)  # fmt: skip
+                       encoder=encoder, activation=cfg.activation, weight_init=cfg.weight_init)  # fmt: skip
 
 
 def learner_settings(cfg: RunConfig) -> PPOConfig | SACConfig:
@@ -324,7 +328,7 @@ def load_policy(path: str | Path, which: str = "policy") -> LoadedPolicy:
         obs_dim = int(meta["obs_dim"])
         encoder = build_encoder(meta["encoder"], obs_dim) if meta.get("encoder") is not None else None
         policy = ActorCritic(obs_dim, int(meta["out_dim"]), str(meta["dist"]), tuple(int(h) for h in meta["hidden"]),
-                             encoder=encoder)  # fmt: skip
+                             encoder=encoder, activation=str(meta.get("activation", "tanh")))  # fmt: skip
         policy.load_state_dict(state[which])
     except (KeyError, RuntimeError, ValueError) as error:
         raise CheckpointError(f"{path}: its weights do not fit its own meta ({_first(error)})") from error
@@ -413,7 +417,7 @@ class Trainer:
             resume = False
         if resume:
             self._restore(self.ckpt_dir / "last.pt")
-        columns = {"train": (*TRAIN_COLUMNS[:2], *self.learner.columns, *TRAIN_COLUMNS[2:],
+        columns = {"train": (*TRAIN_COLUMNS[:3], *self.learner.columns, *TRAIN_COLUMNS[3:],
                              *(f"faults/{name}" for name in self.skill_names)), "eval": EVAL_COLUMNS}  # fmt: skip
         # A resumed run continues its CSVs from the checkpoint's step: rows written after it (the work the crash
         # lost, to be redone) are dropped, so no row is duplicated.
@@ -465,6 +469,7 @@ class Trainer:
                 "obs_dim": self.policy.obs_dim,
                 "out_dim": self.policy.out_dim,
                 "hidden": list(self.cfg.hidden),
+                "activation": self.cfg.activation,
                 "action_filter": self.cfg.action_filter,
                 # Enough to rebuild this policy as a skill of another task (skills.learned): plain containers only.
                 "skills_cfg": _plain(self.cfg.skills),
@@ -564,8 +569,9 @@ class Trainer:
         env_steps_per_step = n * self.steps_per_decision
         vec = self._vector_env()
         space = self.eval_env.action_space
-        ep_return = np.zeros(n)
+        ep_return, ep_true = np.zeros(n), np.zeros(n)
         recent_returns: list[float] = []
+        recent_true: list[float] = []
         faults = np.zeros((n, len(self.skill_names)))  # lifetime faults and calls of each env's skills
         calls = np.zeros((n, len(self.skill_names)))
         skipped_in_a_row, decisions = 0, 0
@@ -596,13 +602,15 @@ class Trainer:
                 update_seconds += seconds
                 done = terminated | truncated
                 ep_return += reward
+                ep_true += _true_rewards(info, reward, done)
                 if "skill_faults" in info:
                     mask = info.get("_skill_faults", np.ones(n, bool))
                     faults[mask], calls[mask] = info["skill_faults"][mask], info["skill_calls"][mask]
                 for i in np.flatnonzero(done):
                     recent_returns.append(float(ep_return[i]))
+                    recent_true.append(float(ep_true[i]))
                     self.episodes += 1
-                    ep_return[i] = 0.0
+                    ep_return[i], ep_true[i] = 0.0, 0.0
                 next_obs = obs
                 if done.any():  # the true successor of an ended episode is its final observation
                     next_obs = obs.copy()
@@ -620,8 +628,11 @@ class Trainer:
                     elapsed = time.perf_counter() - row_start
                     done_steps = self.global_step - row_step
                     train_return = float(np.mean(recent_returns)) if recent_returns else float("nan")
+                    true_return = float(np.mean(recent_true)) if recent_true else float("nan")
                     recent_returns.clear()
+                    recent_true.clear()
                     stats.update({"episodes": self.episodes, "train/episode_reward": train_return,
+                                  "train/true_episode_reward": true_return,
                                   "charts/SPS": done_steps / elapsed, "charts/update_seconds": update_seconds,
                                   "charts/rollout_SPS": done_steps / max(elapsed - update_seconds, 1e-9)})  # fmt: skip
                     stats.update({f"faults/{s}": float(faults[:, k].sum()) for k, s in enumerate(self.skill_names)})
@@ -660,6 +671,17 @@ class Trainer:
         wall = time.perf_counter() - self._start
         return {"final_eval": last_eval, "best_eval": float(self.best_eval), "steps": self.global_step,
                 "wall_seconds": wall}  # fmt: skip
+
+
+def _true_rewards(info: Mapping[str, Any], reward: np.ndarray, done: np.ndarray) -> np.ndarray:
+    """Each env's unshaped reward of the step: ``info["true_reward"]`` (an ended episode's in ``final_info``) where
+    the task reports it, else the reward itself."""
+    true = np.asarray(reward, np.float64).copy()
+    for source, rows in ((info, ~done), (info.get("final_info", {}), done)):
+        if "true_reward" in source:
+            mask = rows & source.get("_true_reward", np.ones_like(done))
+            true[mask] = source["true_reward"][mask]
+    return true
 
 
 def _timed(work: Callable[[], Any]) -> tuple[Any, float]:
