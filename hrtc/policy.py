@@ -12,12 +12,27 @@ import torch
 from torch import nn
 
 from hrtc.distributions import BetaDistribution, NormalDistribution, make_head
-from hrtc.errors import UnknownNameError
+from hrtc.errors import ConfigError, UnknownNameError
 
 ACTIVATIONS: dict[str, type[nn.Module]] = {"tanh": nn.Tanh, "relu": nn.ReLU}
 # orthogonal: CleanRL's (gain sqrt 2 hidden, 1 value output, 0.01 distribution head, zero biases); torch: PyTorch's
 # default Linear init (uniform in +-1/sqrt(fan_in), weights and biases), as the reference CarRacing code leaves it.
 WEIGHT_INITS = ("orthogonal", "torch")
+
+
+DEVICES = ("auto", "cpu", "cuda")
+
+
+def resolve_device(name: str) -> torch.device:
+    """The torch device a ``device`` setting names: ``cpu``, ``cuda`` (the current GPU; an error when torch sees
+    none) or ``auto`` (``cuda`` when torch sees a GPU, else ``cpu``)."""
+    if name not in DEVICES:
+        raise UnknownNameError("device", str(name), DEVICES)
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if name == "cuda" and not torch.cuda.is_available():
+        raise ConfigError(f"device=cuda, but torch {torch.__version__} sees no GPU; use device=cpu or device=auto")
+    return torch.device(name)
 
 
 def mlp(in_dim: int, hidden: Sequence[int], activation: type[nn.Module] = nn.Tanh) -> nn.Sequential:
@@ -92,16 +107,18 @@ class ActorCritic(nn.Module):
                         module.reset_parameters()
 
     def distribution(self, obs: torch.Tensor) -> BetaDistribution | NormalDistribution:
-        """The meta-policy's distribution for ``obs`` (batch, obs_dim)."""
-        if self.encoder is not None:
-            obs = self._features(obs)
-        return self.actor_head(self.actor_body(obs))
+        """The meta-policy's distribution for ``obs`` (batch, obs_dim); uint8 pixels are converted by the encoder."""
+        return self.actor_head(self.actor_body(self._inputs(obs)))
 
     def value(self, obs: torch.Tensor) -> torch.Tensor:
         """V(s), (batch,)."""
+        return self.critic(self._inputs(obs)).squeeze(-1)
+
+    def _inputs(self, obs: torch.Tensor) -> torch.Tensor:
+        """What the MLPs read: the encoder's features, or the observation itself as floats."""
         if self.encoder is not None:
-            obs = self._features(obs)
-        return self.critic(obs).squeeze(-1)
+            return self._features(obs)
+        return obs if obs.is_floating_point() else obs.float()
 
     def _features(self, obs: torch.Tensor) -> torch.Tensor:
         """The encoder's features of ``obs``. PPO asks for ``distribution(x)`` and then ``value(x)`` of the same

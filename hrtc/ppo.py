@@ -158,7 +158,7 @@ def ppo_update(
     minibatch = cfg.minibatch_size or max(1, size // cfg.num_minibatches)
     clipfracs, stats, skipped, total = [], {}, 0, 0
     for _ in range(cfg.update_epochs):
-        order = torch.randperm(size, generator=generator)
+        order = torch.randperm(size, generator=generator).to(batch.obs.device)
         epoch_stats: dict[str, list[float]] = {"pg": [], "v": [], "ent": [], "kl": [], "old_kl": []}
         for start in range(0, size, minibatch):
             idx = order[start : start + minibatch]
@@ -198,7 +198,7 @@ def ppo_update(
         "losses/approx_kl": stats["kl"],
         "losses/old_approx_kl": stats["old_kl"],
         "losses/clipfrac": float(np.mean(clipfracs)) if clipfracs else float("nan"),
-        "losses/explained_variance": explained_variance(batch.values.numpy(), batch.returns.numpy()),
+        "losses/explained_variance": explained_variance(batch.values.cpu().numpy(), batch.returns.cpu().numpy()),
         "losses/skipped": float(skipped),
         "losses/minibatches": float(total),
     }
@@ -211,10 +211,13 @@ PPO_COLUMNS = ("losses/policy_loss", "losses/value_loss", "losses/entropy", "los
 
 class Rollout:
     """On-policy storage for ``num_steps`` vector steps of ``num_envs`` envs: obs, samples, log-probabilities,
-    (scaled, bootstrapped) rewards, episode ends and values, each (T, N, ...)."""
+    (scaled, bootstrapped) rewards, episode ends and values, each (T, N, ...). Observations keep uint8 pixels as
+    uint8 (a quarter of float32's memory; the encoder converts them), anything else as float32 (``obs_dtype``)."""
 
-    def __init__(self, num_steps: int, num_envs: int, obs_dim: int, sample_dim: int) -> None:
-        self.obs = np.zeros((num_steps, num_envs, obs_dim), np.float32)
+    def __init__(
+        self, num_steps: int, num_envs: int, obs_dim: int, sample_dim: int, obs_dtype: Any = np.float32
+    ) -> None:
+        self.obs = np.zeros((num_steps, num_envs, obs_dim), np.uint8 if np.dtype(obs_dtype) == np.uint8 else np.float32)
         self.samples = np.zeros((num_steps, num_envs, sample_dim), np.float32)
         self.logprobs, self.rewards, self.dones, self.values = (np.zeros((num_steps, num_envs), np.float32)
                                                                  for _ in range(4))  # fmt: skip
@@ -224,16 +227,16 @@ class Rollout:
     def full(self) -> bool:
         return self.t == self.obs.shape[0]
 
-    def batch(self, advantages: np.ndarray, returns: np.ndarray) -> Batch:
-        """The rollout flattened over (T, N) with its advantages and returns."""
+    def batch(self, advantages: np.ndarray, returns: np.ndarray, device: torch.device | str = "cpu") -> Batch:
+        """The rollout flattened over (T, N) with its advantages and returns, on ``device``."""
         flat = self.obs.shape[0] * self.obs.shape[1]
         return Batch(
-            torch.as_tensor(self.obs.reshape(flat, -1)),
-            torch.as_tensor(self.samples.reshape(flat, -1)),
-            torch.as_tensor(self.logprobs.reshape(-1)),
-            torch.as_tensor(advantages.reshape(-1), dtype=torch.float32),
-            torch.as_tensor(returns.reshape(-1), dtype=torch.float32),
-            torch.as_tensor(self.values.reshape(-1)),
+            torch.as_tensor(self.obs.reshape(flat, -1), device=device),
+            torch.as_tensor(self.samples.reshape(flat, -1), device=device),
+            torch.as_tensor(self.logprobs.reshape(-1), device=device),
+            torch.as_tensor(advantages.reshape(-1), dtype=torch.float32, device=device),
+            torch.as_tensor(returns.reshape(-1), dtype=torch.float32, device=device),
+            torch.as_tensor(self.values.reshape(-1), device=device),
         )
 
 
@@ -245,7 +248,10 @@ class PPOLearner:
         cfg: the PPO settings.
         num_envs, gamma: the vector envs and the discount per decision (``gamma ** decision_every``).
         num_updates: updates in the whole run (for the learning-rate schedule).
-        generator: draws the minibatch order.
+        generator: draws the minibatch order (a CPU generator: the same order on any device).
+
+    The policy may live on any device (``policy.to("cuda")``): acting and the update run there, and the learner
+    takes and returns numpy arrays on the CPU. The rollout is stored on the CPU and sent over once per update.
     """
 
     update_while_stepping = False
@@ -263,13 +269,21 @@ class PPOLearner:
         self.updates = 0
         self._pending: tuple[np.ndarray, np.ndarray] | None = None  # log-probabilities and values of the last act
 
+    @property
+    def device(self) -> torch.device:
+        return next(self.policy.parameters()).device
+
+    def _value(self, obs: np.ndarray) -> np.ndarray:
+        with torch.no_grad():
+            return self.policy.value(torch.as_tensor(obs, device=self.device)).cpu().numpy()
+
     @torch.no_grad()
     def act(self, obs: np.ndarray) -> tuple[np.ndarray, object]:
-        tobs = torch.as_tensor(obs)
+        tobs = torch.as_tensor(obs, device=self.device)
         distribution = self.policy.distribution(tobs)
         u = distribution.sample()
-        self._pending = (distribution.log_prob(u).numpy(), self.policy.value(tobs).numpy())
-        return u.numpy(), distribution
+        self._pending = (distribution.log_prob(u).cpu().numpy(), self.policy.value(tobs).cpu().numpy())
+        return u.cpu().numpy(), distribution
 
     def observe(self, step: Any) -> None:
         ro, t = self.rollout, self.rollout.t
@@ -279,8 +293,9 @@ class PPOLearner:
         bootstrap = step.truncated | step.terminated if self.cfg.bootstrap_terminal else step.truncated
         if bootstrap.any():
             idx = np.flatnonzero(bootstrap)
-            with torch.no_grad():
-                rewards[idx] += self.gamma * self.policy.value(torch.as_tensor(step.next_obs[idx])).numpy()
+            rewards[idx] += self.gamma * self._value(step.next_obs[idx])
+        if t == 0 and (ro.obs.dtype == np.uint8) != (step.obs.dtype == np.uint8):  # pixels stay uint8
+            ro.obs = np.zeros(ro.obs.shape, np.uint8 if step.obs.dtype == np.uint8 else np.float32)
         ro.obs[t], ro.samples[t], ro.rewards[t], ro.dones[t] = step.obs, step.samples, rewards, done
         ro.logprobs[t], ro.values[t] = self._pending  # type: ignore[misc]
         ro.t += 1
@@ -296,13 +311,12 @@ class PPOLearner:
         if self.cfg.anneal_lr:
             self.optimizer.param_groups[0]["lr"] = (1.0 - self.updates / self.num_updates) * self.cfg.learning_rate
         ro = self.rollout
-        with torch.no_grad():
-            next_value = self.policy.value(torch.as_tensor(self._next_obs)).numpy()
+        next_value = self._value(self._next_obs)
         if self.cfg.advantage == "one_step":
             adv, ret = one_step_advantages(ro.rewards, ro.values, ro.dones, next_value, self.gamma)
         else:
             adv, ret = compute_gae(ro.rewards, ro.values, ro.dones, next_value, self.gamma, self.cfg.gae_lambda)
-        stats = ppo_update(self.policy, self.optimizer, ro.batch(adv, ret), self.cfg, self.generator)
+        stats = ppo_update(self.policy, self.optimizer, ro.batch(adv, ret, self.device), self.cfg, self.generator)
         ro.t = 0
         self.updates += 1
         stats["charts/learning_rate"] = self.optimizer.param_groups[0]["lr"]

@@ -30,7 +30,7 @@ from hrtc.learner import Learner, Step
 from hrtc.logging import CsvSink, Sink
 from hrtc.logging.trace import Recorder, RecordingConfig
 from hrtc.normalize import ObsNormalizer, RewardScaler
-from hrtc.policy import ActorCritic
+from hrtc.policy import ActorCritic, resolve_device
 from hrtc.ppo import PPOConfig, PPOLearner
 from hrtc.sac import SACConfig, SACLearner
 from hrtc.tree import describe
@@ -72,6 +72,7 @@ class RunConfig:
     eval_episodes: int = 3
     checkpoint_every: int = 10_000
     torch_threads: int = 1
+    device: str = "auto"  # cpu | cuda | auto (cuda when torch sees a GPU): where the policy acts and learns
     progress: bool = True
     init_from: str | None = None
     max_skill_fault_rate: float = 0.05
@@ -120,6 +121,8 @@ class RunConfig:
             raise ConfigError(f"hidden must list positive layer widths, got {self.hidden}")
         if self.encoder is not None:
             check_encoder_spec(self.encoder)
+        if resolve_device(self.device).type != "cpu" and self.learner == "sac":
+            raise ConfigError("learner=sac runs on the CPU; set device=cpu")
 
     @classmethod
     def from_mapping(cls, cfg: Mapping[str, Any]) -> RunConfig:
@@ -219,8 +222,11 @@ def build_learner(cfg: RunConfig, policy: ActorCritic, steps_per_decision: int, 
 
 
 def normalize_obs(normalizer: ObsNormalizer | None, obs: np.ndarray, update: bool = False) -> np.ndarray:
-    """``obs`` (batch, obs_dim) as the policy sees it: normalised when the run normalises, float32 always."""
-    return normalizer(obs, update) if normalizer is not None else obs.astype(np.float32)
+    """``obs`` (batch, obs_dim) as the policy sees it: normalised when the run normalises, else float32 (uint8 pixels
+    stay uint8: the encoder converts them, and the rollout stores a quarter of the bytes)."""
+    if normalizer is not None:
+        return normalizer(obs, update)
+    return obs if obs.dtype == np.uint8 else obs.astype(np.float32)
 
 
 # --------------------------------------------------------------------------------------------------- evaluation
@@ -279,24 +285,25 @@ def evaluate(
 ) -> np.ndarray:
     """Returns of one deterministic episode per seed (the distribution's mode: the Beta mean for HRTC); recorded
     with the critic's values when a ``recorder`` is given (see :func:`run_episodes`)."""
+    device = next(policy.parameters()).device
 
     def decide(obs: np.ndarray) -> Decision:
         nobs = normalize_obs(normalizer, obs[None])
-        distribution = policy.distribution(torch.as_tensor(nobs))
-        u = distribution.mode().numpy()[0]
+        distribution = policy.distribution(torch.as_tensor(nobs, device=device))
+        u = distribution.mode().cpu().numpy()[0]
         alpha, beta = _beta_parameters(distribution)
         return Decision(nobs[0], u, to_env_action(u, env.action_space, dist), alpha, beta)
 
     def values(obs: np.ndarray) -> np.ndarray:
         with torch.no_grad():
-            return policy.value(torch.as_tensor(obs)).numpy()
+            return policy.value(torch.as_tensor(obs, device=device)).cpu().numpy()
 
     return run_episodes(env, decide, seeds, recorder, render, values if recorder is not None else None)
 
 
 def _beta_parameters(distribution: Any) -> tuple[np.ndarray | None, np.ndarray | None]:
     if isinstance(distribution, BetaDistribution):
-        return distribution.alpha.numpy()[0], distribution.beta.numpy()[0]
+        return distribution.alpha.cpu().numpy()[0], distribution.beta.cpu().numpy()[0]
     return None, None
 
 
@@ -399,7 +406,7 @@ class Trainer:
         space = self.eval_env.action_space
         self.skill_names: tuple[str, ...] = getattr(self.eval_env, "skill_names", ())
         obs_dim = int(np.prod(self.eval_env.observation_space.shape))
-        self.policy = policy_for(cfg, obs_dim, space)
+        self.policy = policy_for(cfg, obs_dim, space).to(resolve_device(cfg.device))
         # One decision spans decision_every env steps: discount per decision accordingly.
         self.steps_per_decision = cfg.decision_every if cfg.algo == "hrtc" else 1
         self.learner = build_learner(cfg, self.policy, self.steps_per_decision, self.generator)

@@ -158,7 +158,8 @@ def test_xavier_init_and_the_references_input_scaling():
         bound = math.sqrt(2.0) * math.sqrt(6.0 / (fan_in + fan_out))
         assert conv.weight.abs().max() <= bound and conv.weight.abs().max() > 0.9 * bound
     obs = torch.randint(0, 256, (2, 4 * 96 * 96)).float()
-    np.testing.assert_allclose(encoder(obs).detach(), encoder.net(obs.reshape(2, 4, 96, 96) / 128 - 1).detach())
+    expected = encoder.net(obs.reshape(2, 4, 96, 96) / 128 - 1).detach()
+    np.testing.assert_allclose(encoder(obs).detach(), expected, rtol=1e-4, atol=1e-5)  # the map folded into conv 1
     with pytest.raises(UnknownNameError):
         ConvEncoder(init="he")
     with pytest.raises(UnknownNameError):

@@ -184,3 +184,65 @@ def test_carracing_paper_task_is_the_reference_exactly():
     assert (cfg.hidden, cfg.activation, cfg.weight_init) == ((100,), "relu", "torch")
     assert cfg.encoder["scale"] * 255 + cfg.encoder["offset"] == pytest.approx(255 / 128 - 1)
     assert cfg.encoder["offset"] == -1.0 and cfg.encoder["init"] == "xavier"
+
+
+# --------------------------------------------------------------------------------------------------- throughput, device
+def _pixel_learner(seed: int = 0) -> PPOLearner:
+    from hrtc.encoders import ConvEncoder
+
+    torch.manual_seed(seed)
+    encoder = ConvEncoder(shape=(2, 96, 96), channels=(4, 4, 8, 8, 8, 8))
+    policy = ActorCritic(2 * 96 * 96, 2, "beta", (16,), encoder=encoder)
+    cfg = PPOConfig(num_steps=4, num_minibatches=2, update_epochs=2, scale_reward=False, normalize_obs=False)
+    return PPOLearner(policy, cfg, num_envs=2, gamma=0.99, num_updates=1, generator=torch.Generator().manual_seed(1))
+
+
+def test_uint8_pixels_are_stored_as_uint8_and_learn_exactly_as_floats():
+    rng = np.random.default_rng(0)
+    frames = rng.integers(0, 256, (5, 2, 2 * 96 * 96)).astype(np.uint8)
+    runs = []
+    for dtype in (np.uint8, np.float32):
+        learner = _pixel_learner()
+        torch.manual_seed(2)
+        for t in range(4):
+            u, _ = learner.act(frames[t].astype(dtype))
+            done = np.array([t == 1, False])
+            learner.observe(Step(frames[t].astype(dtype), u, np.array([1.0, -0.5]), frames[t + 1].astype(dtype), done,
+                                 np.zeros(2, bool)))  # fmt: skip
+        assert learner.rollout.obs.dtype == dtype and learner.rollout.obs.nbytes == 4 * 2 * 2 * 96 * 96 * (
+            1 if dtype == np.uint8 else 4
+        )
+        runs.append((learner.update(), [p.detach().clone() for p in learner.policy.parameters()]))
+    (stats8, params8), (stats32, params32) = runs
+    assert stats8 == pytest.approx(stats32, rel=1e-6, nan_ok=True)
+    for a, b in zip(params8, params32, strict=True):
+        torch.testing.assert_close(a, b)
+
+
+def test_device_auto_is_cuda_only_when_torch_sees_a_gpu(monkeypatch):
+    from hrtc.policy import resolve_device
+
+    assert resolve_device("cpu") == torch.device("cpu")
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    assert resolve_device("auto") == torch.device("cpu")
+    with pytest.raises(ConfigError, match="sees no GPU"):
+        resolve_device("cuda")
+    with pytest.raises(UnknownNameError):
+        resolve_device("tpu")
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
+    assert resolve_device("auto") == torch.device("cuda") == resolve_device("cuda")
+
+
+def test_device_cuda_without_a_gpu_is_one_error_line():
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    if torch.cuda.is_available():
+        pytest.skip("this machine has a GPU")
+    root = Path(__file__).resolve().parents[2]
+    result = subprocess.run([sys.executable, str(root / "scripts" / "train.py"), "task=carracing_paper", "device=cuda"],
+                            cwd=root, capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert result.returncode == 2 and result.stderr.strip().splitlines() == [
+        f"error: device=cuda, but torch {torch.__version__} sees no GPU; use device=cpu or device=auto"
+    ]
