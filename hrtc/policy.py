@@ -125,12 +125,14 @@ class ActorCritic(nn.Module):
         batch: the second call reuses the first's features (and autograd graph) instead of running the encoder
         twice, when the batch is equal, the grad mode is the same and no encoder weight has changed since."""
         versions = tuple(p._version for p in self.encoder.parameters())
-        key = (tuple(obs.shape), obs.dtype, torch.is_grad_enabled(), versions)
+        key = (tuple(obs.shape), obs.dtype, obs.device, torch.is_grad_enabled(), versions)
         cached = self._features_cache
-        if cached is not None and cached[0] == key and torch.equal(cached[1], obs):
+        # The very same tensor, unmodified since (its version counter), needs no element-wise comparison.
+        same = cached is not None and cached[1] is obs and cached[3] == obs._version
+        if cached is not None and cached[0] == key and (same or torch.equal(cached[1], obs)):
             features = cached[2]
             self._features_cache = None  # one reuse: a later call recomputes (its graph may have been freed)
             return features
         features = self.encoder(obs)
-        self._features_cache = (key, obs.detach(), features)
+        self._features_cache = (key, obs.detach() if obs.requires_grad else obs, features, obs._version)
         return features

@@ -163,7 +163,8 @@ def ppo_update(
         for start in range(0, size, minibatch):
             idx = order[start : start + minibatch]
             total += 1
-            dist = policy.distribution(batch.obs[idx])
+            obs = batch.obs[idx]  # gathered once: the value below reuses the encoder's features of this very tensor
+            dist = policy.distribution(obs)
             logratio = dist.log_prob(batch.samples[idx]) - batch.logprobs[idx]
             ratio = logratio.exp()
             with torch.no_grad():
@@ -174,7 +175,7 @@ def ppo_update(
             if cfg.norm_adv and adv.numel() > 1:
                 adv = (adv - adv.mean()) / (adv.std() + 1e-8)
             pg_loss = torch.max(-adv * ratio, -adv * ratio.clamp(1 - cfg.clip_coef, 1 + cfg.clip_coef)).mean()
-            v_loss = value_loss(policy.value(batch.obs[idx]), batch.returns[idx], cfg.value_loss)
+            v_loss = value_loss(policy.value(obs), batch.returns[idx], cfg.value_loss)
             entropy = dist.entropy().mean()
             loss = pg_loss - cfg.ent_coef * entropy + cfg.vf_coef * v_loss
             if not torch.isfinite(loss):
