@@ -287,7 +287,7 @@ class ComposedEnv(gym.Wrapper):
         weights = np.asarray(weights, dtype=np.float64).reshape(-1)
         if weights.shape != (len(self.library),):
             raise ShapeError(f"expected {len(self.library)} skill weights {self.library.names}, got {weights.shape}")
-        total = 0.0
+        total, true_total = 0.0, 0.0  # true_total: a shaping task's own reward (info["true_reward"]), summed too
         faulted = np.zeros(len(self.library))  # a skill's fault at any env step of this decision is reported
         for _ in range(self.decision_every):
             proposals, skill_info = self._proposals, self._skill_info
@@ -295,10 +295,13 @@ class ComposedEnv(gym.Wrapper):
             action = self.action_filter(weights, proposals)
             obs, reward, terminated, truncated, info = self.env.step(action.astype(np.float32))
             total += float(reward)
+            true_total += float(info.get("true_reward", reward))
             self._step += 1
             if terminated or truncated:
                 break
             self._propose()
+        if "true_reward" in info:
+            info["true_reward"] = true_total
         keep = (lambda key: True) if self.diagnostics else (lambda key: not key.endswith(TIMING_SUFFIX))
         info.update(
             weights=np.clip(weights, 0.0, 1.0),

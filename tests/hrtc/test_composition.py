@@ -153,3 +153,19 @@ def test_build_library_from_config_and_its_errors():
         build_library({"x": {"skill": {"_target_": "skills.nope.Missing"}}})
     with pytest.raises(ConfigError, match="at least one"):
         build_library({})
+
+
+def test_a_decision_sums_the_shaped_tasks_true_reward_as_it_sums_the_reward():
+    """Over a decision of several env steps, info["true_reward"] is the sum of the task's own rewards, as the reward
+    is the sum of the shaped ones (carracing with the reference's +100 at its end)."""
+    library = SkillLibrary([SkillSlot("gas", StaticIntent([0.0, 0.5, 0.0]), KeysFilter(()))])
+    composed = ComposedEnv(make("carracing", action_repeat=1, max_frames=4, end_bonus=100.0), library,
+                           decision_every=2)  # fmt: skip
+    plain = make("carracing", action_repeat=1, max_frames=4)
+    composed.reset(seed=3)
+    plain.reset(seed=3)
+    for decision in range(2):
+        _, reward, _, truncated, info = composed.step(np.array([1.0]))
+        true = sum(plain.step(np.array([0.0, 0.5, 0.0], np.float32))[1] for _ in range(2))
+        assert info["true_reward"] == pytest.approx(true, abs=1e-12)
+        assert reward == pytest.approx(true + 100.0 * (decision == 1), abs=1e-12) and truncated == (decision == 1)
