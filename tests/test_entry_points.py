@@ -146,8 +146,10 @@ EVAL = [
     (["checkpoint={hrtc}", "frame_episodes=-1"], "frame_episodes must be an integer >= 0, got -1"),
     (["checkpoint={hrtc}", "out={text}"], "notes.txt exists and is a file, not a directory"),
     (["checkpoint={hrtc}", "out={text}/eval"], "notes.txt is a file, not a directory"),
-    (["checkpoint={hrtc}", "task=cartpol"],
-     "unknown task 'cartpol'; valid tasks: carracing, carracing_paper, cartpole_balance"),
+    (
+        ["checkpoint={hrtc}", "task=cartpol"],
+        "unknown task 'cartpol'; valid tasks: carracing, carracing_paper, cartpole_balance",
+    ),
     (["checkpoint={hrtc}", "task=[cartpole_swingup]"], "unknown task \"['cartpole_swingup']\""),
     (["checkpoint={hrtc}", "task=lunarlander"], "cannot evaluate", SLOW),
     (
