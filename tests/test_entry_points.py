@@ -199,7 +199,10 @@ def test_eval_on_changed_physics(files, tmp_path):
 # --------------------------------------------------------------------------------------------------- eval_skill.py
 SKILL = [
     ([], "task=<name, e.g. cartpole_swingup> is required"),
-    (["task=cartpol", "skill=hold"], "unknown task 'cartpol'; valid tasks: carracing, cartpole_energy"),
+    (
+        ["task=cartpol", "skill=hold"],
+        "unknown task 'cartpol'; valid tasks: carracing, carracing_paper, cartpole_energy",
+    ),
     (["task=cartpole_swingup"], "skill=<name> or weights=[...] is required; the skills are swingup, balance"),
     (["task=cartpole_swingup", "skill=nope"], "unknown skill 'nope'; valid skills: balance, hold, list"),
     (
