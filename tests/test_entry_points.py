@@ -147,7 +147,10 @@ EVAL = [
     (["checkpoint={hrtc}", "frame_episodes=-1"], "frame_episodes must be an integer >= 0, got -1"),
     (["checkpoint={hrtc}", "out={text}"], "notes.txt exists and is a file, not a directory"),
     (["checkpoint={hrtc}", "out={text}/eval"], "notes.txt is a file, not a directory"),
-    (["checkpoint={hrtc}", "task=cartpol"], "unknown task 'cartpol'; valid tasks: carracing, cartpole_balance"),
+    (
+        ["checkpoint={hrtc}", "task=cartpol"],
+        "unknown task 'cartpol'; valid tasks: carracing, carracing_paper, cartpole_balance",
+    ),
     (["checkpoint={hrtc}", "task=[cartpole_swingup]"], "unknown task \"['cartpole_swingup']\""),
     (["checkpoint={hrtc}", "task=lunarlander"], "cannot evaluate", SLOW),
     (
@@ -197,7 +200,10 @@ def test_eval_on_changed_physics(files, tmp_path):
 # --------------------------------------------------------------------------------------------------- eval_skill.py
 SKILL = [
     ([], "task=<name, e.g. cartpole_swingup> is required"),
-    (["task=cartpol", "skill=hold"], "unknown task 'cartpol'; valid tasks: carracing, cartpole_energy"),
+    (
+        ["task=cartpol", "skill=hold"],
+        "unknown task 'cartpol'; valid tasks: carracing, carracing_paper, cartpole_energy",
+    ),
     (["task=cartpole_swingup"], "skill=<name> or weights=[...] is required; the skills are swingup, balance"),
     (["task=cartpole_swingup", "skill=nope"], "unknown skill 'nope'; valid skills: balance, hold, list"),
     (
