@@ -358,16 +358,23 @@ class CarRaster:
 
     Args:
         grey: draw one luma channel (``GREY_WEIGHTS``) instead of RGB; frames are then (96, 96, 1).
+        channel: draw one channel of the RGB frame instead (0 red, 1 green, 2 blue; overrides ``grey``); frames
+            are then (96, 96, 1) (the paper's grass test reads the green channel).
         samples: point samples per output pixel along each axis (``samples**2`` a pixel).
         text_cache: distinct reward texts kept.
     """
 
-    def __init__(self, grey: bool = False, samples: int = 3, text_cache: int = 512) -> None:
+    def __init__(self, grey: bool = False, samples: int = 3, text_cache: int = 512, channel: int | None = None) -> None:
         if samples < 1:
             raise ValueError(f"samples must be >= 1, got {samples}")
-        self.grey, self.samples = bool(grey), int(samples)
-        self.channels = 1 if grey else 3
-        self.weights = GREY_WEIGHTS[None, :].copy() if grey else np.eye(3)  # (C, 3): RGB -> output channels
+        if channel is not None and channel not in (0, 1, 2):
+            raise ValueError(f"channel must be 0, 1 or 2, got {channel}")
+        self.grey, self.samples = bool(grey) or channel is not None, int(samples)
+        self.channels = 1 if self.grey else 3
+        if channel is not None:
+            self.weights = np.eye(3)[channel : channel + 1].copy()  # (1, 3): one RGB component
+        else:
+            self.weights = GREY_WEIGHTS[None, :].copy() if grey else np.eye(3)  # (C, 3): RGB -> output channels
         self._ids = np.zeros((ROAD_ROWS * self.samples, FRAME * self.samples), np.int16)  # polygon id per sample
         self._world: Polygons | None = None
         self._car_max = 2 * 16  # room for 16 car polygons, each with its stripe (gymnasium's car has 8)
@@ -380,6 +387,16 @@ class CarRaster:
         self._text_cache: OrderedDict[str, np.ndarray] = OrderedDict()
         self._text_cache_size = int(text_cache)
         self._font = None
+
+    @property
+    def world(self) -> Polygons | None:
+        """The static scene given to :meth:`set_world` (None before)."""
+        return self._world
+
+    @property
+    def car(self) -> CarShape | None:
+        """The car given to :meth:`set_car` (None before)."""
+        return self._car
 
     def set_world(self, world: Polygons, field_half: float = 0.0) -> None:
         """The static scene (background, grass, road and kerbs, in drawing order). ``world.rgb`` may be a live table

@@ -32,6 +32,10 @@ from envs.registry import register
 from hrtc.errors import ConfigError
 
 MAX_FRAMES = 1000  # gymnasium's registered time limit for CarRacing-v3, frames (one frame is 1/50 s)
+# The reference protocol's constants (xtma/pytorch_car_caring train.py, Env.step and Env.reward_memory).
+NO_PROGRESS_WINDOW = 100  # frames whose shaped rewards the early stop averages
+NO_PROGRESS_MEAN = -0.1  # ...and the mean at or below which it ends the episode
+GRASS_GREEN = 185.0  # a frame is "grass" when its green channel's mean exceeds this (0-255)
 SOLVE_RETURN = 900.0  # the return both solve rules ask for, averaged over 10 (the paper) or 100 (gym) tracks
 STATE_KEYS = ("speed", "forward_speed", "lateral_speed", "yaw_rate", "steering_angle", "heading", "position",
               "wheels_on_road", "progress")  # fmt: skip
@@ -58,6 +62,7 @@ class FastCarRacing(cr.CarRacing):
             raise ConfigError("FastCarRacing supports continuous actions only (HRTC blends continuous actions)")
         self.grey = bool(grey)
         self.raster = CarRaster(grey=self.grey, samples=samples)
+        self._green: CarRaster | None = None  # the green channel alone, one sample a pixel (green_mean)
         self._skip_frame = False  # set while repeating an action: gymnasium's step() then draws nothing
         self._car_id: int | None = None
 
@@ -95,6 +100,8 @@ class FastCarRacing(cr.CarRacing):
                 tile.color = view
                 self.road_poly[k] = (vertices, view)
         self.raster.set_world(world, field_half=cr.PLAYFIELD)
+        if self._green is not None:
+            self._green.set_world(world, field_half=cr.PLAYFIELD)
 
     def _adopt_car(self) -> None:
         """Hand the new car's shape to the rasteriser: every fixture's vertices in its body's frame (Box2D's order)."""
@@ -106,7 +113,10 @@ class FastCarRacing(cr.CarRacing):
                 bodies.append(index)
                 colours.append(_WHEEL_RGB if "phase" in body.__dict__ else _HULL_RGB)
         packed = pack_polygons(polygons, np.array(colours))
-        self.raster.set_car(CarShape(packed.vertices, packed.counts, np.array(bodies, np.int64), packed.rgb))
+        shape = CarShape(packed.vertices, packed.counts, np.array(bodies, np.int64), packed.rgb)
+        self.raster.set_car(shape)
+        if self._green is not None:
+            self._green.set_car(shape)
         self._car_id = id(car)
 
     def _camera(self) -> Camera:
@@ -116,6 +126,25 @@ class FastCarRacing(cr.CarRacing):
 
     def draw_frame(self) -> np.ndarray:
         """The current ``state_pixels`` frame: (96, 96, 3) RGB or, with ``grey``, (96, 96), uint8."""
+        frame = self._draw(self.raster)
+        return frame[:, :, 0] if self.grey else frame
+
+    def green_mean(self) -> float:
+        """The mean of the green channel (0-255) of the current ``state_pixels`` frame, the whole 96x96 frame with
+        its indicator bar, drawn with one sample a pixel (a frame's mean differs from the 3x3-sampled one's by about
+        0.2 of 255). The reference's grass test: ``np.mean(frame[:, :, 1]) > 185``."""
+        if self._green is None:
+            self._green = CarRaster(channel=1, samples=1)
+            self._adopt_track_to(self._green)
+        return float(self._draw(self._green).mean())
+
+    def _adopt_track_to(self, raster: CarRaster) -> None:
+        if self.raster.world is not None:
+            raster.set_world(self.raster.world, field_half=cr.PLAYFIELD)
+        if self.raster.car is not None:
+            raster.set_car(self.raster.car)
+
+    def _draw(self, raster: CarRaster) -> np.ndarray:
         car = self.car
         if self._car_id != id(car):  # a new car each reset
             self._adopt_car()
@@ -124,8 +153,7 @@ class FastCarRacing(cr.CarRacing):
         velocity = car.hull.linearVelocity
         indicators = np.array([math.sqrt(velocity[0] ** 2 + velocity[1] ** 2), *(w.omega for w in car.wheels),
                                car.wheels[0].joint.angle, car.hull.angularVelocity])  # fmt: skip
-        frame = self.raster.render(self._camera(), poses, phases, indicators, f"{self.reward:04.0f}")
-        return frame[:, :, 0] if self.grey else frame
+        return raster.render(self._camera(), poses, phases, indicators, f"{self.reward:04.0f}")
 
     def _render(self, mode: str) -> Any:
         if mode != "state_pixels":
@@ -179,8 +207,23 @@ class CarRacingTask(FastCarRacing):
         max_frames: the time limit in physics frames (truncation).
         flatten: flat observations.
         episode_log: if set, a CSV file that gets one line per finished episode (appended, safe across processes):
-            ``wall_time, pid, reset_seed (-1 when reset without a seed), return, frames, lap_finished``.
-        **kwargs: :class:`FastCarRacing`'s and gymnasium's arguments.
+            ``wall_time, pid, reset_seed (-1 when reset without a seed), return, frames, lap_finished, true_return,
+            early_stop``: ``return`` is the (shaped) score the learner saw, ``true_return`` gymnasium's reward.
+        early_stop: end the episode (truncated, ``info["early_stop"]``) at the first frame where the mean of the
+            last 100 frames' shaped rewards (zeros before the episode's 100th frame) is <= -0.1: about 100 frames
+            without a new tile.
+        grass_penalty: subtracted from every frame whose 96x96 view is mostly grass (its green channel's mean
+            above 185, :meth:`FastCarRacing.green_mean`; this draws every frame).
+        end_bonus: added on the frame where gymnasium's own rules end the episode: a finished lap, leaving the
+            playfield (its -100 then nets 0) or the ``max_frames`` time limit (gym 0.10's ``TimeLimit`` reported it
+            as the end, and the reference added the bonus to it as well).
+        **kwargs: :class:`FastCarRacing`'s and gymnasium's arguments (``lap_complete_percent=1.0`` needs every
+            tile, as gym 0.10's CarRacing-v0 did; gymnasium's default 0.95).
+
+    The last three are the reference protocol (xtma/pytorch_car_caring ``train.py``, ``Env.step``, which the paper's
+    network follows); all off by default (gymnasium's protocol). Rewards are shaped per frame in the reference's
+    order: bonus, grass penalty, then the early-stop test on the shaped reward. ``info["true_reward"]`` is always
+    gymnasium's reward of the step, summed over its frames.
     """
 
     def __init__(
@@ -192,6 +235,9 @@ class CarRacingTask(FastCarRacing):
         max_frames: int = MAX_FRAMES,
         flatten: bool = True,
         episode_log: str | None = None,
+        early_stop: bool = False,
+        grass_penalty: float = 0.0,
+        end_bonus: float = 0.0,
         **kwargs: Any,
     ) -> None:
         kwargs.setdefault("grey", True)
@@ -200,16 +246,24 @@ class CarRacingTask(FastCarRacing):
         for name, value in (("action_repeat", action_repeat), ("frame_stack", frame_stack), ("max_frames", max_frames)):
             if not isinstance(value, int) or isinstance(value, bool) or value < 1:
                 raise ConfigError(f"{name} must be a positive integer, got {value!r}")
+        for name, value in (("grass_penalty", grass_penalty), ("end_bonus", end_bonus)):
+            if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+                raise ConfigError(f"{name} must be a finite number, got {value!r}")
+        if not isinstance(early_stop, bool):
+            raise ConfigError(f"early_stop must be true or false, got {early_stop!r}")
         super().__init__(render_mode=render_mode, **kwargs)
         EzPickle.__init__(self, render_mode=render_mode, action_repeat=action_repeat, frame_stack=frame_stack,
-                          max_frames=max_frames, flatten=flatten, episode_log=episode_log, **kwargs)  # fmt: skip
+                          max_frames=max_frames, flatten=flatten, episode_log=episode_log, early_stop=early_stop,
+                          grass_penalty=grass_penalty, end_bonus=end_bonus, **kwargs)  # fmt: skip
         self.action_repeat, self.max_frames, self.episode_log = action_repeat, max_frames, episode_log
+        self.early_stop, self.grass_penalty, self.end_bonus = early_stop, float(grass_penalty), float(end_bonus)
+        self._recent = np.zeros(NO_PROGRESS_WINDOW)  # the last frames' shaped rewards (early_stop), a ring
         self.frame_shape = (frame_stack, FRAME, FRAME)
         self._stack = np.zeros(self.frame_shape, np.uint8)
         shape = (int(np.prod(self.frame_shape)),) if flatten else self.frame_shape
         self.observation_space = gym.spaces.Box(0, 255, shape, np.uint8)
         self._flatten = flatten
-        self.frames, self.episode_return, self._reset_seed = 0, 0.0, -1
+        self.frames, self.episode_return, self.true_return, self._reset_seed = 0, 0.0, 0.0, -1
 
     def _observation(self) -> np.ndarray:
         return self._stack.reshape(-1).copy() if self._flatten else self._stack.copy()
@@ -221,7 +275,8 @@ class CarRacingTask(FastCarRacing):
         finally:
             self._skip_frame = False
         self._stack[:] = self.draw_frame()
-        self.frames, self.episode_return = 0, 0.0
+        self.frames, self.episode_return, self.true_return = 0, 0.0, 0.0
+        self._recent[:] = 0.0
         self._reset_seed = -1 if seed is None else int(seed)
         return self._observation(), {}
 
@@ -229,31 +284,42 @@ class CarRacingTask(FastCarRacing):
         if action is None:  # gymnasium's reset() takes this step itself
             return super().step(None)
         action = np.asarray(action, dtype=np.float32)
-        total, terminated, info = 0.0, False, {}
+        total, true_total, terminated, stopped, info = 0.0, 0.0, False, False, {}
         self._skip_frame = True
         try:
             for _ in range(self.action_repeat):
                 _, reward, terminated, _, info = super().step(action)
                 self.frames += 1
-                total += float(reward)
-                if terminated or self.frames >= self.max_frames:
+                true_total += float(reward)
+                ended = terminated or self.frames >= self.max_frames
+                shaped = float(reward) + (self.end_bonus if ended else 0.0)
+                if self.grass_penalty and self.green_mean() > GRASS_GREEN:
+                    shaped -= self.grass_penalty
+                total += shaped
+                if self.early_stop:
+                    self._recent[(self.frames - 1) % NO_PROGRESS_WINDOW] = shaped
+                    stopped = float(self._recent.mean()) <= NO_PROGRESS_MEAN
+                if ended or stopped:
                     break
         finally:
             self._skip_frame = False
-        truncated = self.frames >= self.max_frames
+        truncated = self.frames >= self.max_frames or (stopped and not terminated)
         self._stack[:-1] = self._stack[1:]
         self._stack[-1] = self.draw_frame()
         self.episode_return += total
+        self.true_return += true_total
+        info = dict(info, frames=self.frames, true_reward=true_total)
+        if stopped and not terminated:
+            info["early_stop"] = True
         if terminated or truncated:
-            self._log_episode(bool(info.get("lap_finished", False)))
-        info = dict(info, frames=self.frames)
+            self._log_episode(bool(info.get("lap_finished", False)), bool(info.get("early_stop", False)))
         return self._observation(), total, bool(terminated), bool(truncated), info
 
-    def _log_episode(self, lap_finished: bool) -> None:
+    def _log_episode(self, lap_finished: bool, early_stop: bool) -> None:
         if not self.episode_log:
             return
         fields = (f"{time.time():.3f}", os.getpid(), self._reset_seed, f"{self.episode_return:.4f}", self.frames,
-                  int(lap_finished))  # fmt: skip
+                  int(lap_finished), f"{self.true_return:.4f}", int(early_stop))  # fmt: skip
         line = ",".join(str(f) for f in fields) + "\n"
         fd = os.open(self.episode_log, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
         try:
@@ -279,7 +345,19 @@ def pursuit_driver(env: cr.CarRacing, rng: np.random.Generator, mode: str = "roa
     return np.array([steer, 0.6 if speed < 60 else 0.0, 0.0 if speed < 70 else 0.5], np.float32)
 
 
+# The reference protocol (xtma/pytorch_car_caring train.py, Env.step) on gymnasium's CarRacing: the early stop on
+# no progress, -0.05 a grass frame, +100 at gym's own end, and every tile for a lap (gym 0.10's CarRacing-v0).
+REFERENCE_PROTOCOL: dict[str, Any] = {"early_stop": True, "grass_penalty": 0.05, "end_bonus": 100.0,
+                                      "lap_complete_percent": 1.0}  # fmt: skip
+
+
 @register("carracing")
 def carracing(**kwargs: Any) -> CarRacingTask:
     """gymnasium's CarRacing-v3 (continuous) with fast greyscale frames, a 4-frame stack and action repeat."""
     return CarRacingTask(**kwargs)
+
+
+@register("carracing_paper")
+def carracing_paper(**kwargs: Any) -> CarRacingTask:
+    """``carracing`` under the reference protocol (:data:`REFERENCE_PROTOCOL`; each setting may be overridden)."""
+    return CarRacingTask(**{**REFERENCE_PROTOCOL, **kwargs})

@@ -118,27 +118,32 @@ class SkillFaults(BaseCallback):
 
 
 # --------------------------------------------------------------------------------------------------- metrics
-# train.csv: these, with the learner's own columns after the first two, then each skill's fault count and the
+# train.csv: these, with the learner's own columns after the first three, then each skill's fault count and the
 # vector-env worker restarts.
-TRAIN_COLUMNS = ("episodes", "train/episode_reward", "charts/SPS", "charts/rollout_SPS", "charts/update_seconds")
+# train/true_episode_reward: the task's own return where the env shapes its reward (info["true_reward"]).
+TRAIN_COLUMNS = ("episodes", "train/episode_reward", "train/true_episode_reward", "charts/SPS", "charts/rollout_SPS",
+                 "charts/update_seconds")  # fmt: skip
 EVAL_COLUMNS = ("episode_reward", "episode_reward_std", "episodes", "train_episodes", "wall_seconds")
 
 
 def csv_columns(learner_columns: Sequence[str], skill_names: Sequence[str]) -> dict[str, tuple[str, ...]]:
     """The columns of ``train.csv`` and ``eval.csv`` (after ``step``) that :class:`MetricsLog` fills."""
     faults = (*(f"faults/{name}" for name in skill_names), "faults/worker_restarts")
-    return {"train": (*TRAIN_COLUMNS[:2], *learner_columns, *TRAIN_COLUMNS[2:], *faults), "eval": EVAL_COLUMNS}
+    return {"train": (*TRAIN_COLUMNS[:3], *learner_columns, *TRAIN_COLUMNS[3:], *faults), "eval": EVAL_COLUMNS}
 
 
 class MetricsLog(BaseCallback):
     """Rows of metrics to the sinks (``train.csv``, ``eval.csv``, a recording...): the learner's ``train.csv`` rows
-    with the episodes, the mean return of the episodes ended since the last row, the throughput, the update time,
+    with the episodes, the mean return of the episodes ended since the last row (and their mean true return, where the
+    task shapes its reward: :func:`true_rewards`), the throughput, the update time,
     each skill's faults (from ``faults``) and the vector env's worker restarts (``run.vec.restarts``) added.
     :meth:`write` takes any other stream's rows. Closes the sinks."""
 
     def __init__(self, sinks: Sequence[Sink], faults: SkillFaults | None = None) -> None:
         self.sinks, self.faults = list(sinks), faults
         self.returns: list[float] = []
+        self.true_returns: list[float] = []  # the same episodes' unshaped returns
+        self.ep_true = np.zeros(0)  # each training env's unshaped return so far
         self.row_start, self.row_step, self.update_seconds = time.perf_counter(), 0, 0.0
 
     def write(self, stream: str, step: int, metrics: Mapping[str, float]) -> None:
@@ -147,10 +152,16 @@ class MetricsLog(BaseCallback):
 
     def on_start(self, run: Run) -> None:
         self.row_start, self.row_step, self.update_seconds = time.perf_counter(), run.global_step, 0.0
+        self.ep_true = np.zeros(0)  # a (resumed) run's envs start new episodes
 
     def on_step(self, run: Run, step: Transition) -> None:
         self.returns.extend(step.episode_returns)
         self.update_seconds += step.update_seconds
+        if len(self.ep_true) != len(step.rewards):
+            self.ep_true = np.zeros(len(step.rewards))
+        self.ep_true += true_rewards(step.info, step.rewards, step.done)
+        self.true_returns.extend(float(r) for r in self.ep_true[step.done])
+        self.ep_true[step.done] = 0.0
 
     def on_update(self, run: Run, stats: dict[str, float] | None) -> None:
         if not stats:  # no row due
@@ -158,7 +169,8 @@ class MetricsLog(BaseCallback):
         elapsed = time.perf_counter() - self.row_start
         done_steps = run.global_step - self.row_step
         stats.update({"episodes": run.episodes,
-                      "train/episode_reward": float(np.mean(self.returns)) if self.returns else float("nan"),
+                      "train/episode_reward": _mean(self.returns),
+                      "train/true_episode_reward": _mean(self.true_returns),
                       "charts/SPS": done_steps / elapsed, "charts/update_seconds": self.update_seconds,
                       "charts/rollout_SPS": done_steps / max(elapsed - self.update_seconds, 1e-9)})  # fmt: skip
         if self.faults is not None:
@@ -167,11 +179,27 @@ class MetricsLog(BaseCallback):
         stats["faults/worker_restarts"] = float(getattr(getattr(run, "vec", None), "restarts", 0))
         self.write("train", run.global_step, stats)
         self.returns.clear()
+        self.true_returns.clear()
         self.row_start, self.row_step, self.update_seconds = time.perf_counter(), run.global_step, 0.0
 
     def on_end(self, run: Run, interrupted: bool) -> None:
         for sink in self.sinks:
             sink.close()
+
+
+def _mean(values: Sequence[float]) -> float:
+    return float(np.mean(values)) if values else float("nan")
+
+
+def true_rewards(info: Mapping[str, Any], reward: np.ndarray, done: np.ndarray) -> np.ndarray:
+    """Each env's unshaped reward of the step: ``info["true_reward"]`` (an ended episode's in ``final_info``) where
+    the task reports it, else the reward itself."""
+    true = np.asarray(reward, np.float64).copy()
+    for source, rows in ((info, ~done), (info.get("final_info", {}), done)):
+        if "true_reward" in source:
+            mask = rows & source.get("_true_reward", np.ones_like(done))
+            true[mask] = source["true_reward"][mask]
+    return true
 
 
 # --------------------------------------------------------------------------------------------------- health

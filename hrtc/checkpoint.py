@@ -109,7 +109,7 @@ def load_policy(path: str | Path, which: str = "policy") -> LoadedPolicy:
         obs_dim = int(meta["obs_dim"])
         encoder = build_encoder(meta["encoder"], obs_dim) if meta.get("encoder") is not None else None
         policy = ActorCritic(obs_dim, int(meta["out_dim"]), str(meta["dist"]), tuple(int(h) for h in meta["hidden"]),
-                             encoder=encoder)  # fmt: skip
+                             encoder=encoder, activation=str(meta.get("activation", "tanh")))  # fmt: skip
         policy.load_state_dict(state[which])
     except (KeyError, RuntimeError, ValueError) as error:
         raise CheckpointError(f"{path}: its weights do not fit its own meta ({_first(error)})") from error

@@ -323,15 +323,19 @@ class ComposedEnv(gym.Wrapper):
         if weights.shape != (len(self.library),):
             raise ShapeError(f"expected {len(self.library)} skill weights {self.library.names}, got {weights.shape}")
         total, state = 0.0, self.env.unwrapped.skill_state
+        true_total = 0.0  # a shaping task's own reward (info["true_reward"]), summed too
         faulted = np.zeros(len(self.library))  # a skill's fault at any env step of this decision is reported
         for _ in range(self.decision_every):
             action, proposals, skill_info = self.composition.act(state, lambda: weights)
             faulted = np.maximum(faulted, [i.get("fault", 0.0) for i in skill_info])
             obs, reward, terminated, truncated, info = self.env.step(action.astype(np.float32))
             total += float(reward)
+            true_total += float(info.get("true_reward", reward))
             if terminated or truncated:
                 break
             self.composition.propose(state)  # the next step's proposals now: the fault counts below include them
+        if "true_reward" in info:
+            info["true_reward"] = true_total
         keep = (lambda key: True) if self.diagnostics else (lambda key: not key.endswith(TIMING_SUFFIX))
         info.update(
             weights=self.composition.weights.copy(),

@@ -11,6 +11,7 @@ from hrtc.composition import BLEND_MODES
 from hrtc.encoders import check_encoder_spec
 from hrtc.errors import ConfigError, UnknownNameError
 from hrtc.logging.trace import RecordingConfig
+from hrtc.policy import resolve_device
 from hrtc.ppo import PPOConfig
 from hrtc.sac import SACConfig
 
@@ -38,10 +39,13 @@ class RunConfig:
     num_envs: int = 2
     vector: str = "async"
     hidden: tuple[int, ...] = (64, 64)
+    activation: str = "tanh"  # the actor and critic MLPs' (hrtc.policy.ACTIVATIONS)
+    weight_init: str = "orthogonal"  # the MLPs' and heads' (hrtc.policy.WEIGHT_INITS)
     eval_every: int = 5_000
     eval_episodes: int = 3
     checkpoint_every: int = 10_000
     torch_threads: int = 1
+    device: str = "auto"  # cpu | cuda | auto (cuda when torch sees a GPU): where the policy acts and learns
     progress: bool = True
     init_from: str | None = None
     max_skill_fault_rate: float = 0.05
@@ -94,6 +98,13 @@ class RunConfig:
             raise ConfigError(f"hidden must list positive layer widths, got {self.hidden}")
         if self.encoder is not None:
             check_encoder_spec(self.encoder)
+        if self.learner == "sac" and resolve_device(self.policy_device).type != "cpu":
+            raise ConfigError("learner=sac runs on the CPU; set device=cpu or device=auto")
+
+    @property
+    def policy_device(self) -> str:
+        """Where the policy acts and learns: ``device``, except that ``auto`` is the CPU for SAC (CPU-only)."""
+        return "cpu" if self.learner == "sac" and self.device == "auto" else self.device
 
     @classmethod
     def from_mapping(cls, cfg: Mapping[str, Any]) -> RunConfig:

@@ -72,13 +72,15 @@ def run_episodes(
 
 def mode_decider(policy: ActorCritic, normalizer: ObsNormalizer | None, space: gym.spaces.Box,
                  dist: str) -> Callable[[np.ndarray], Decision]:  # fmt: skip
-    """The meta-policy acting deterministically: the mode of its distribution (the Beta mean for HRTC)."""
+    """The meta-policy acting deterministically: the mode of its distribution (the Beta mean for HRTC), on the
+    policy's device."""
+    device = next(policy.parameters()).device
 
     @torch.no_grad()
     def decide(obs: np.ndarray) -> Decision:
         nobs = normalize_obs(normalizer, obs[None])
-        distribution = policy.distribution(torch.as_tensor(nobs))
-        u = distribution.mode().numpy()[0]
+        distribution = policy.distribution(torch.as_tensor(nobs, device=device))
+        u = distribution.mode().cpu().numpy()[0]
         alpha, beta = beta_parameters(distribution)
         return Decision(nobs[0], u, to_action(u, space.low, space.high, dist).astype(np.float32), alpha, beta)
 
@@ -97,10 +99,11 @@ def evaluate(
 ) -> np.ndarray:
     """Returns of one deterministic episode per seed (:func:`mode_decider`); recorded with the master critic's
     values when a ``recorder`` is given (see :func:`run_episodes`)."""
+    device = next(policy.parameters()).device
 
     def values(obs: np.ndarray) -> np.ndarray:
         with torch.no_grad():
-            return policy.value(torch.as_tensor(obs)).numpy()
+            return policy.value(torch.as_tensor(obs, device=device)).cpu().numpy()
 
     decide = mode_decider(policy, normalizer, env.action_space, dist)  # type: ignore[arg-type]
     return run_episodes(env, decide, seeds, recorder, render, values if recorder is not None else None)
@@ -109,5 +112,5 @@ def evaluate(
 def beta_parameters(distribution: Any) -> tuple[np.ndarray | None, np.ndarray | None]:
     """The first row's Beta parameters (alpha, beta) of ``distribution``; (None, None) for other distributions."""
     if isinstance(distribution, BetaDistribution):
-        return distribution.alpha.numpy()[0], distribution.beta.numpy()[0]
+        return distribution.alpha.cpu().numpy()[0], distribution.beta.cpu().numpy()[0]
     return None, None

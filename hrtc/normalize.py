@@ -64,5 +64,8 @@ class RewardScaler:
 
 
 def normalize_obs(normalizer: ObsNormalizer | None, obs: np.ndarray, update: bool = False) -> np.ndarray:
-    """``obs`` (batch, obs_dim) as the policy sees it: normalised when the run normalises, float32 always."""
-    return normalizer(obs, update) if normalizer is not None else obs.astype(np.float32)
+    """``obs`` (batch, obs_dim) as the policy sees it: normalised when the run normalises, else float32 (uint8 pixels
+    stay uint8: the encoder converts them, and the rollout stores a quarter of the bytes)."""
+    if normalizer is not None:
+        return normalizer(obs, update)
+    return obs if obs.dtype == np.uint8 else obs.astype(np.float32)

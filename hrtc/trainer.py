@@ -68,7 +68,7 @@ class Trainer:
         self.skill_names: tuple[str, ...] = getattr(self.eval_env, "skill_names", ())
         obs_dim = int(np.prod(self.eval_env.observation_space.shape))
         self.policy = build_policy(obs_dim, space.low, space.high, cfg.dist, cfg.hidden, cfg.beta_init_bias,
-                                   cfg.encoder)  # fmt: skip
+                                   cfg.encoder, cfg.activation, cfg.weight_init, cfg.policy_device)  # fmt: skip
         self.steps_per_decision = cfg.steps_per_decision  # the learner discounts per decision accordingly
         self.learner = build_learner(cfg.learner, cfg.learner_settings, self.policy, cfg.num_envs, cfg.steps,
                                      self.steps_per_decision, self.generator)  # fmt: skip
@@ -206,7 +206,7 @@ class Trainer:
                 "hidden": list(cfg.hidden), "action_filter": cfg.action_filter, "skills_cfg": plain(cfg.skills),
                 "env_kwargs": plain(cfg.env_kwargs), "decision_every": self.steps_per_decision,
                 "action_low": space.low.tolist(), "action_high": space.high.tolist(),
-                "encoder": plain(cfg.encoder)}  # fmt: skip
+                "encoder": plain(cfg.encoder), "activation": cfg.activation}  # fmt: skip
         return {
             "policy": self.policy.state_dict(),
             "optimizer": self.learner.state_dict(),  # the learner's whole training state (optimisers, buffers...)

@@ -149,7 +149,7 @@ EVAL = [
     (["checkpoint={hrtc}", "out={text}/eval"], "notes.txt is a file, not a directory"),
     (
         ["checkpoint={hrtc}", "task=cartpol"],
-        "unknown task 'cartpol'; valid tasks: acrobot_swingup, carracing, cartpole_balance",
+        "unknown task 'cartpol'; valid tasks: acrobot_swingup, carracing, carracing_paper",
     ),
     (["checkpoint={hrtc}", "task=[cartpole_swingup]"], "unknown task \"['cartpole_swingup']\""),
     (["checkpoint={hrtc}", "task=lunarlander"], "cannot evaluate", SLOW),
@@ -202,7 +202,7 @@ SKILL = [
     ([], "task=<name, e.g. cartpole_swingup> is required"),
     (
         ["task=cartpol", "skill=hold"],
-        "unknown task 'cartpol'; valid tasks: acrobot_swingup, carracing, cartpole_energy",
+        "unknown task 'cartpol'; valid tasks: acrobot_swingup, carracing, carracing_paper, cartpole_energy",
     ),
     (["task=cartpole_swingup"], "skill=<name> or weights=[...] is required; the skills are swingup, balance"),
     (["task=cartpole_swingup", "skill=nope"], "unknown skill 'nope'; valid skills: balance, hold, list"),

@@ -186,3 +186,127 @@ def test_gymnasium_env_checker_accepts_the_task():
     task = envs.make("carracing", action_repeat=2)
     check_env(task, skip_render_check=True)
     assert isinstance(task, gym.Env)
+
+
+# ------------------------------------------------------------------------------------------- the reference protocol
+def _drive(task, actions):
+    """Step ``task`` with ``actions`` until it ends; per step (shaped reward, info, terminated, truncated)."""
+    steps = []
+    for action in actions:
+        _, reward, terminated, truncated, info = task.step(np.asarray(action, np.float32))
+        steps.append((reward, info, terminated, truncated))
+        if terminated or truncated:
+            break
+    return steps
+
+
+STRAIGHT = [[0.0, 0.4, 0.0]] * 200  # track 4's first bend is ahead: straight on leaves the road onto the grass
+
+
+def test_driving_straight_onto_grass_ends_early_only_under_the_option():
+    stopped_task = envs.make("carracing", action_repeat=8, early_stop=True)
+    stopped_task.reset(seed=4)
+    default_task = envs.make("carracing", action_repeat=8)
+    default_task.reset(seed=4)
+    stopped = _drive(stopped_task, STRAIGHT)
+    default = _drive(default_task, STRAIGHT[: len(stopped)])
+    reward, info, terminated, truncated = stopped[-1]
+    assert truncated and not terminated and info["early_stop"] and info["frames"] < 400
+    assert not any(t or u for _, _, t, u in default) and "early_stop" not in default[-1][1]
+    # Without shaping the option changes nothing but the end (mid-repeat): the same rewards before it.
+    assert [r for r, *_ in stopped[:-1]] == [r for r, *_ in default[:-1]]
+
+
+def test_early_stop_is_the_first_frame_where_the_last_100_frames_average_at_most_minus_0_1():
+    task = envs.make("carracing", action_repeat=1, early_stop=True, grass_penalty=0.05)
+    task.reset(seed=4)
+    history = []
+    for t in range(1000):
+        _, reward, terminated, truncated, info = task.step(np.array([0.0, 0.4, 0.0], np.float32))
+        history.append(reward)
+        window = np.zeros(100)
+        window[: min(len(history), 100)] = history[-100:]
+        assert bool(truncated) == (window.mean() <= -0.1), f"frame {t + 1}"
+        if truncated:
+            break
+    assert info["early_stop"] and 100 < task.frames < 400
+
+
+def test_shaped_reward_is_the_true_reward_plus_bonus_minus_grass_frames():
+    """Per frame (action repeat 1): shaped - gymnasium's = -0.05 exactly on frames whose view is mostly grass, +100 on
+    gym's end, and the true returns of the shaped and unshaped env are the same on the same actions.
+
+    On gymnasium's frames a view of grass alone has a green mean of about 182-184 (a quarter of the grass is the
+    lighter 230; the black bar is 1/8 of the frame): the reference's test (> 185) fires only when the indicator
+    bars add green, a few frames of a wild drive on the grass."""
+    shaped = envs.make("carracing_paper", action_repeat=1, early_stop=False)
+    plain = envs.make("carracing", action_repeat=1)
+    shaped.reset(seed=1)
+    plain.reset(seed=1)
+    rng = np.random.default_rng(0)
+    grass_frames = 0
+    for t in range(600):
+        action = driver(shaped, rng, "wild")
+        _, reward, terminated, truncated, info = shaped.step(action)
+        _, true_reward, plain_end, *_ = plain.step(action)
+        assert info["true_reward"] == true_reward and terminated == plain_end, f"frame {t + 1}"
+        grass = shaped.green_mean() > 185.0
+        grass_frames += grass
+        assert reward == pytest.approx(true_reward + 100.0 * terminated - 0.05 * grass, abs=1e-12), f"frame {t + 1}"
+        if terminated:
+            break
+    assert grass_frames >= 3
+    assert shaped.true_return == pytest.approx(plain.episode_return, abs=1e-9)
+    bonus = 100.0 if terminated else 0.0
+    assert shaped.episode_return == pytest.approx(plain.episode_return + bonus - 0.05 * grass_frames, abs=1e-9)
+
+
+@pytest.mark.parametrize("seed", [2, 4])
+def test_green_mean_is_gymnasiums_frame_green_mean(seed):
+    """The grass test reads the green channel of the frame gymnasium itself would draw (on the road and off it)."""
+    task = FastCarRacing()
+    task.reset(seed=seed)
+    for t in range(120):
+        task.step(np.array([0.0, 0.4, 0.0], np.float32))
+        if t % 20 == 19:
+            assert task.green_mean() == pytest.approx(task.gym_frame()[:, :, 1].mean(), abs=0.5), f"step {t}"
+
+
+def test_end_bonus_cancels_leaving_the_playfield_and_rewards_the_time_limit(tmp_path):
+    log = tmp_path / "episodes.csv"
+    task = envs.make("carracing", action_repeat=1, end_bonus=100.0, episode_log=str(log))
+    task.reset(seed=2)
+    for _ in range(250):  # as test_leaving_the_playfield_ends_both_with_minus_100
+        car = task.car
+        pos, heading = np.array(car.hull.position), car.hull.angle
+        away = pos / np.linalg.norm(pos)
+        forward = np.array([-math.sin(heading), math.cos(heading)])
+        angle = math.atan2(forward[0] * away[1] - forward[1] * away[0], forward @ away)
+        _, reward, terminated, _, info = task.step(np.array([np.clip(-angle, -1, 1), 0.3, 0.0], np.float32))
+        if terminated:
+            break
+    assert terminated and info["true_reward"] == -100 and reward == 0.0
+    timed = envs.make("carracing", action_repeat=8, max_frames=20, end_bonus=100.0, episode_log=str(log))
+    timed.reset(seed=1)
+    steps = _drive(timed, [[0.0, 0.5, 0.0]] * 3)
+    assert [u for *_, u in steps] == [False, False, True]
+    assert [r - i["true_reward"] for r, i, *_ in steps] == [0.0, 0.0, 100.0]
+    rows = [line.split(",") for line in log.read_text().strip().splitlines()]
+    assert len(rows) == 2 and all(len(row) == 8 for row in rows)
+    for row, env in zip(rows, (task, timed), strict=True):  # shaped score, then the true return
+        assert float(row[3]) == pytest.approx(env.episode_return, abs=1e-3) and float(row[3]) != float(row[6])
+        assert float(row[6]) == pytest.approx(env.true_return, abs=1e-3) and row[7] == "0"
+
+
+def test_paper_task_is_the_reference_protocol_and_bad_options_are_config_errors():
+    from hrtc.errors import ConfigError
+
+    paper, plain = envs.make("carracing_paper"), envs.make("carracing")
+
+    def protocol(env):
+        return env.early_stop, env.grass_penalty, env.end_bonus, env.lap_complete_percent
+
+    assert protocol(paper) == (True, 0.05, 100, 1.0) and protocol(plain) == (False, 0, 0, 0.95)
+    for bad in ({"grass_penalty": "much"}, {"end_bonus": float("nan")}, {"early_stop": 1}):
+        with pytest.raises(ConfigError):
+            envs.make("carracing", **bad)

@@ -189,3 +189,19 @@ def test_the_composition_holds_its_weights_between_decisions_and_asks_each_skill
     np.testing.assert_array_equal(composition.weights, [1.0, 0.0])
     with pytest.raises(ConfigError, match="decision_every must be >= 1"):
         Composition(library, ActionFilter(np.array([-1.0]), np.array([1.0])), decision_every=0)
+
+
+def test_a_decision_sums_the_shaped_tasks_true_reward_as_it_sums_the_reward():
+    """Over a decision of several env steps, info["true_reward"] is the sum of the task's own rewards, as the reward
+    is the sum of the shaped ones (carracing with the reference's +100 at its end)."""
+    library = SkillLibrary([SkillSlot("gas", StaticIntent([0.0, 0.5, 0.0]), KeysFilter(()))])
+    composed = ComposedEnv(make("carracing", action_repeat=1, max_frames=4, end_bonus=100.0), library,
+                           decision_every=2)  # fmt: skip
+    plain = make("carracing", action_repeat=1, max_frames=4)
+    composed.reset(seed=3)
+    plain.reset(seed=3)
+    for decision in range(2):
+        _, reward, _, truncated, info = composed.step(np.array([1.0]))
+        true = sum(plain.step(np.array([0.0, 0.5, 0.0], np.float32))[1] for _ in range(2))
+        assert info["true_reward"] == pytest.approx(true, abs=1e-12)
+        assert reward == pytest.approx(true + 100.0 * (decision == 1), abs=1e-12) and truncated == (decision == 1)

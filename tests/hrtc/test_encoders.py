@@ -144,3 +144,56 @@ def test_train_cli_runs_two_updates_on_carracing(tmp_path):
     train = pd.read_csv(tmp_path / "train.csv")
     assert len(train) == 2 and np.isfinite(train["losses/value_loss"]).all()
     assert len(pd.read_csv(tmp_path / "eval.csv")) >= 2
+
+
+def test_xavier_init_and_the_references_input_scaling():
+    """The reference's network: xavier_uniform (gain sqrt 2) convolutions with biases 0.1, on grey / 128 - 1."""
+    import math
+
+    torch.manual_seed(0)
+    encoder = ConvEncoder(scale=1 / 128, offset=-1.0, init="xavier")
+    convs = [m for m in encoder.net if isinstance(m, torch.nn.Conv2d)]
+    for conv in convs:
+        assert torch.all(conv.bias == 0.1)
+        fan_in = conv.in_channels * conv.kernel_size[0] * conv.kernel_size[1]
+        fan_out = conv.out_channels * conv.kernel_size[0] * conv.kernel_size[1]
+        bound = math.sqrt(2.0) * math.sqrt(6.0 / (fan_in + fan_out))
+        assert conv.weight.abs().max() <= bound and conv.weight.abs().max() > 0.9 * bound
+    obs = torch.randint(0, 256, (2, 4 * 96 * 96)).float()
+    expected = encoder.net(obs.reshape(2, 4, 96, 96) / 128 - 1).detach()
+    np.testing.assert_allclose(encoder(obs).detach(), expected, rtol=1e-4, atol=1e-5)  # the map folded into conv 1
+    with pytest.raises(UnknownNameError):
+        ConvEncoder(init="he")
+    with pytest.raises(UnknownNameError):
+        check_encoder_spec({"name": "conv", "init": "he"})
+
+
+def test_relu_and_torch_init_and_a_saved_policy_keeps_its_activation(tmp_path):
+    """The reference's heads (ReLU, PyTorch's default Linear init) through the real entry point, and load_policy
+    rebuilds them from the checkpoint (a tanh rebuild would load the same weights and act differently)."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    import pandas as pd
+
+    from hrtc.checkpoint import load_policy
+
+    policy = ActorCritic(10, 3, "beta", (100,), activation="relu", weight_init="torch")
+    assert any(isinstance(m, torch.nn.ReLU) for m in policy.critic.modules())
+    assert not any(isinstance(m, torch.nn.Tanh) for m in policy.modules())
+    head = policy.actor_head.linear
+    assert head.bias.abs().max() > 0.01 and head.weight.abs().max() <= 1 / 10  # U(-1/sqrt(100), 1/sqrt(100))
+    with pytest.raises(UnknownNameError):
+        ActorCritic(10, 3, activation="gelu")
+    root = Path(__file__).resolve().parents[2]
+    cmd = [sys.executable, str(root / "scripts" / "train.py"), "task=carracing_paper", "algo=ppo", "steps=64",
+           "ppo.num_steps=16", "ppo.minibatch_size=8", "ppo.update_epochs=1", "eval_every=64", "eval_episodes=1",
+           "vector=sync", "progress=false", "logger.mode=off", "+task.env_kwargs.max_frames=200",
+           f"hydra.run.dir={tmp_path}"]  # fmt: skip
+    subprocess.run(cmd, check=True, cwd=root, capture_output=True, timeout=600)
+    train = pd.read_csv(tmp_path / "train.csv")
+    assert len(train) == 2 and np.isfinite(train["train/true_episode_reward"].iloc[-1])
+    loaded = load_policy(tmp_path / "checkpoints" / "last.pt")
+    assert any(isinstance(m, torch.nn.ReLU) for m in loaded.policy.modules())
+    assert not any(isinstance(m, torch.nn.Tanh) for m in loaded.policy.modules())

@@ -4,8 +4,20 @@ import numpy as np
 import pytest
 import torch
 
+from hrtc.errors import ConfigError, UnknownNameError
+from hrtc.learner import Step
 from hrtc.policy import ActorCritic
-from hrtc.ppo import Batch, PPOConfig, compute_gae, explained_variance, ppo_update
+from hrtc.ppo import (
+    REFERENCE_PPO,
+    Batch,
+    PPOConfig,
+    PPOLearner,
+    compute_gae,
+    explained_variance,
+    one_step_advantages,
+    ppo_update,  # fmt: skip
+    value_loss,
+)
 
 
 def test_gae_lambda_one_is_discounted_return_minus_value():
@@ -71,3 +83,185 @@ def test_ppo_update_raises_the_probability_of_advantaged_samples(dist):
     for key in ("losses/approx_kl", "losses/clipfrac", "losses/explained_variance", "losses/value_loss"):
         assert np.isfinite(stats[key])
     assert stats["losses/skipped"] == 0
+
+
+# -------------------------------------------------------------------------------------------------- the reference PPO
+def test_one_step_advantages_by_hand():
+    # Two envs, three steps; env 0's episode ends after step 1 (nothing bootstrapped across it).
+    rewards = np.array([[1.0, 0.0], [2.0, 1.0], [3.0, -1.0]])
+    values = np.array([[0.5, 1.0], [0.25, 2.0], [1.0, 0.0]])
+    dones = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 0.0]])
+    next_value, gamma = np.array([2.0, 4.0]), 0.5
+    adv, ret = one_step_advantages(rewards, values, dones, next_value, gamma)
+    expected_ret = np.array([[1 + 0.5 * 0.25, 0 + 0.5 * 2.0], [2.0, 1 + 0.5 * 0.0], [3 + 0.5 * 2.0, -1 + 0.5 * 4.0]])
+    np.testing.assert_allclose(ret, expected_ret)
+    np.testing.assert_allclose(adv, expected_ret - values)
+    np.testing.assert_allclose(adv, compute_gae(rewards, values, dones, next_value, gamma, lam=0.0)[0])
+
+
+def test_smooth_l1_value_loss_by_hand():
+    predicted, target = torch.tensor([0.0, 0.5, 3.0, -2.0]), torch.tensor([0.0, 0.0, 0.0, -1.5])
+    # Huber with threshold 1: 0.5 d^2 inside, |d| - 0.5 outside: 0, 0.125, 2.5, 0.125
+    assert float(value_loss(predicted, target, "smooth_l1")) == pytest.approx((0 + 0.125 + 2.5 + 0.125) / 4)
+    assert float(value_loss(predicted, target, "mse")) == pytest.approx(0.5 * (0 + 0.25 + 9 + 0.25) / 4)
+    with pytest.raises(UnknownNameError):
+        value_loss(predicted, target, "l3")
+
+
+def test_reference_minibatches_are_128_with_the_remainder_last():
+    torch.manual_seed(0)
+    policy = ActorCritic(3, 2, "beta", (8,))
+    obs = torch.randn(2000, 3)
+    with torch.no_grad():
+        d = policy.distribution(obs)
+        u = d.sample()
+        batch = Batch(obs, u, d.log_prob(u), torch.randn(2000), torch.randn(2000), policy.value(obs))
+    cfg = PPOConfig(**{**REFERENCE_PPO, "update_epochs": 2})
+    opt = torch.optim.Adam(policy.parameters(), lr=cfg.learning_rate, eps=cfg.adam_eps)
+    stats = ppo_update(policy, opt, batch, cfg, torch.Generator().manual_seed(0))
+    assert stats["losses/minibatches"] == 2 * 16  # 15 of 128 and one of 80 per epoch, as BatchSampler(drop_last=False)
+
+
+def test_without_clipping_a_large_gradient_moves_the_weights_further():
+    def first_step(max_grad_norm):
+        torch.manual_seed(0)
+        policy = ActorCritic(3, 2, "beta", (8,))
+        obs = torch.randn(64, 3)
+        with torch.no_grad():
+            d = policy.distribution(obs)
+            u = d.sample()
+            batch = Batch(obs, u, d.log_prob(u), torch.zeros(64), torch.full((64,), 1e3), policy.value(obs))
+        before = [p.detach().clone() for p in policy.parameters()]
+        cfg = PPOConfig(update_epochs=1, num_minibatches=1, max_grad_norm=max_grad_norm, norm_adv=False)
+        ppo_update(policy, torch.optim.SGD(policy.parameters(), lr=1e-3), batch, cfg, torch.Generator())
+        return sum(float((p.detach() - b).norm() ** 2) for p, b in zip(policy.parameters(), before, strict=True)) ** 0.5
+
+    clipped, free = first_step(0.5), first_step(None)
+    assert clipped == pytest.approx(1e-3 * 0.5, rel=1e-3) and free > 100 * clipped
+
+
+@pytest.mark.parametrize("bootstrap_terminal", [False, True])
+def test_bootstrap_terminal_adds_gamma_v_of_the_final_state(bootstrap_terminal):
+    torch.manual_seed(0)
+    policy = ActorCritic(3, 2, "beta", (8,))
+    cfg = PPOConfig(num_steps=2, scale_reward=False, bootstrap_terminal=bootstrap_terminal)
+    learner = PPOLearner(policy, cfg, num_envs=3, gamma=0.9, num_updates=1, generator=torch.Generator())
+    obs, next_obs = np.random.default_rng(0).normal(size=(2, 3, 3)).astype(np.float32)
+    u, _ = learner.act(obs)
+    rewards = np.array([1.0, 2.0, 3.0])
+    terminated, truncated = np.array([True, False, False]), np.array([False, True, False])
+    learner.observe(Step(obs, u, rewards, next_obs, terminated, truncated))
+    with torch.no_grad():
+        v_next = policy.value(torch.as_tensor(next_obs)).numpy()
+    expected = rewards + 0.9 * v_next * np.array([bootstrap_terminal, True, False])
+    np.testing.assert_allclose(learner.rollout.rewards[0], expected, rtol=1e-6)
+    np.testing.assert_array_equal(learner.rollout.dones[0], [1, 1, 0])
+
+
+@pytest.mark.parametrize(
+    "bad", [{"advantage": "td"}, {"value_loss": "l3"}, {"minibatch_size": 0}, {"max_grad_norm": 0.0},
+            {"adam_eps": -1.0}, {"norm_adv": "no"}])  # fmt: skip
+def test_bad_ppo_settings_are_config_errors(bad):
+    with pytest.raises((ConfigError, UnknownNameError)):
+        PPOConfig(**bad)
+
+
+def test_carracing_paper_task_is_the_reference_exactly():
+    """The task config holds every reference setting: PPO (REFERENCE_PPO; a 2,000-transition rollout), protocol,
+    network (six xavier convolutions with biases 0.1 on grey / 128 - 1, ReLU 100-unit actor and critic, PyTorch's
+    Linear init)."""
+    from omegaconf import OmegaConf
+
+    from envs.carracing import REFERENCE_PROTOCOL
+    from hrtc.cli import compose
+    from hrtc.config import RunConfig
+
+    cfg = RunConfig.from_mapping(OmegaConf.to_container(compose(["task=carracing_paper", "algo=ppo"]), resolve=True))
+    assert {k: getattr(cfg.ppo, k) for k in REFERENCE_PPO} == REFERENCE_PPO
+    assert cfg.ppo.num_steps * cfg.num_envs == 2000
+    assert {k: cfg.env_kwargs[k] for k in REFERENCE_PROTOCOL} == REFERENCE_PROTOCOL
+    assert cfg.env_kwargs["action_repeat"] == 8 and cfg.env_kwargs["frame_stack"] == 4
+    assert (cfg.hidden, cfg.activation, cfg.weight_init) == ((100,), "relu", "torch")
+    assert cfg.encoder["scale"] * 255 + cfg.encoder["offset"] == pytest.approx(255 / 128 - 1)
+    assert cfg.encoder["offset"] == -1.0 and cfg.encoder["init"] == "xavier"
+
+
+# --------------------------------------------------------------------------------------------------- throughput, device
+def _pixel_learner(seed: int = 0) -> PPOLearner:
+    from hrtc.encoders import ConvEncoder
+
+    torch.manual_seed(seed)
+    encoder = ConvEncoder(shape=(2, 96, 96), channels=(4, 4, 8, 8, 8, 8))
+    policy = ActorCritic(2 * 96 * 96, 2, "beta", (16,), encoder=encoder)
+    cfg = PPOConfig(num_steps=4, num_minibatches=2, update_epochs=2, scale_reward=False, normalize_obs=False)
+    return PPOLearner(policy, cfg, num_envs=2, gamma=0.99, num_updates=1, generator=torch.Generator().manual_seed(1))
+
+
+def test_uint8_pixels_are_stored_as_uint8_and_learn_exactly_as_floats():
+    rng = np.random.default_rng(0)
+    frames = rng.integers(0, 256, (5, 2, 2 * 96 * 96)).astype(np.uint8)
+    runs = []
+    for dtype in (np.uint8, np.float32):
+        learner = _pixel_learner()
+        torch.manual_seed(2)
+        for t in range(4):
+            u, _ = learner.act(frames[t].astype(dtype))
+            done = np.array([t == 1, False])
+            learner.observe(Step(frames[t].astype(dtype), u, np.array([1.0, -0.5]), frames[t + 1].astype(dtype), done,
+                                 np.zeros(2, bool)))  # fmt: skip
+        assert learner.rollout.obs.dtype == dtype and learner.rollout.obs.nbytes == 4 * 2 * 2 * 96 * 96 * (
+            1 if dtype == np.uint8 else 4
+        )
+        runs.append((learner.update(), [p.detach().clone() for p in learner.policy.parameters()]))
+    (stats8, params8), (stats32, params32) = runs
+    assert stats8 == pytest.approx(stats32, rel=1e-6, nan_ok=True)
+    for a, b in zip(params8, params32, strict=True):
+        torch.testing.assert_close(a, b)
+
+
+def test_device_auto_is_cuda_only_when_torch_sees_a_gpu(monkeypatch):
+    from hrtc.policy import resolve_device
+
+    assert resolve_device("cpu") == torch.device("cpu")
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    assert resolve_device("auto") == torch.device("cpu")
+    with pytest.raises(ConfigError, match="sees no GPU"):
+        resolve_device("cuda")
+    with pytest.raises(UnknownNameError):
+        resolve_device("tpu")
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
+    assert resolve_device("auto") == torch.device("cuda") == resolve_device("cuda")
+
+
+def test_device_cuda_without_a_gpu_is_one_error_line():
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    if torch.cuda.is_available():
+        pytest.skip("this machine has a GPU")
+    root = Path(__file__).resolve().parents[2]
+    result = subprocess.run([sys.executable, str(root / "scripts" / "train.py"), "task=carracing_paper", "device=cuda"],
+                            cwd=root, capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert result.returncode == 2 and result.stderr.strip().splitlines() == [
+        f"error: device=cuda, but torch {torch.__version__} sees no GPU; use device=cpu or device=auto"
+    ]
+
+
+def test_device_auto_keeps_sac_on_the_cpu_on_a_gpu_machine(monkeypatch):
+    """The bare command (cartpole_swingup learns with SAC) must run on a GPU machine: auto is the CPU for SAC, the GPU
+    for PPO; only an explicit device=cuda with SAC is refused."""
+    from omegaconf import OmegaConf
+
+    from hrtc.cli import compose
+    from hrtc.config import RunConfig
+
+    def config(*overrides: str) -> RunConfig:
+        return RunConfig.from_mapping(OmegaConf.to_container(compose(list(overrides)), resolve=True))
+
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
+    sac = config("task=cartpole_swingup")
+    ppo = config("task=cartpole_swingup", "learner=ppo")
+    assert (sac.learner, sac.policy_device) == ("sac", "cpu") and ppo.policy_device == "auto"
+    with pytest.raises(ConfigError, match="learner=sac runs on the CPU"):
+        config("task=cartpole_swingup", "device=cuda")

@@ -1,5 +1,6 @@
 """The trainer on the real cartpole: resuming continues the files, one seed gives one result, configs validate."""
 
+import numpy as np
 import pandas as pd
 import pytest
 from omegaconf import OmegaConf
@@ -86,3 +87,18 @@ def test_resume_refuses_a_checkpoint_of_another_skill_set(tmp_path):
 def test_run_config_validation(kwargs, error, match):
     with pytest.raises(error, match=match):
         _cfg(1000, **kwargs)
+
+
+def test_true_rewards_come_from_info_and_an_ended_episodes_final_info():
+    """The shaped task's own reward per env: info["true_reward"] for running episodes, final_info's for ended ones
+    (gymnasium's same-step autoreset), the reward itself where the task reports none."""
+    from hrtc.callbacks import true_rewards
+
+    reward, done = np.array([5.0, 100.0, 7.0]), np.array([False, True, False])
+    info = {
+        "true_reward": np.array([4.0, 0.0, 0.0]),
+        "_true_reward": np.array([True, False, False]),
+        "final_info": {"true_reward": np.array([0.0, -0.5, 0.0]), "_true_reward": np.array([False, True, False])},
+    }
+    np.testing.assert_array_equal(true_rewards(info, reward, done), [4.0, -0.5, 7.0])
+    np.testing.assert_array_equal(true_rewards({}, reward, done), reward)
