@@ -34,7 +34,7 @@ METRIC_ARGS: dict[str, dict[str, Any]] = {
     "success": {"episodes": 1000, "seed_base": 2_000_000, "checkpoints": ["best"], "families": []},
     "episodes": {"windows": [10, 100], "paper_episodes": {}, "cutoff": 10_000},
 }
-EPISODE_LOG = ["wall_time", "pid", "reset_seed", "return", "frames", "lap_finished"]
+EPISODE_LOG = ["wall_time", "pid", "reset_seed", "return", "frames", "lap_finished", "true_return", "early_stop"]
 
 
 def after_training(spec: Any, started: float) -> dict[str, Any]:
