@@ -93,24 +93,9 @@ class CartTrackingMPC:
         max_iter: int = 15,
         substeps: int = 1,
     ) -> None:
-        if not (np.isfinite(dt) and dt > 0.0):
-            raise ConfigError(f"dt must be a positive number of seconds, got {dt!r}")
-        if isinstance(horizon, bool) or not isinstance(horizon, int | np.integer) or horizon < 1:
-            raise ConfigError(f"horizon must be an integer >= 1, got {horizon!r}")
-        if isinstance(max_iter, bool) or not isinstance(max_iter, int | np.integer) or max_iter < 1:
-            raise ConfigError(f"max_iter must be an integer >= 1, got {max_iter!r}")
-        if isinstance(substeps, bool) or not isinstance(substeps, int | np.integer) or substeps < 1:
-            raise ConfigError(f"substeps must be an integer >= 1, got {substeps!r}")
-        weights = {
-            "w_position": w_position,
-            "w_velocity": w_velocity,
-            "w_control": w_control,
-            "w_terminal_position": w_terminal_position,
-            "w_terminal_velocity": w_terminal_velocity,
-        }
-        for name, value in weights.items():
-            if not (np.isfinite(value) and value >= 0.0):
-                raise ConfigError(f"{name} must be a finite number >= 0, got {value!r}")
+        weights = dict(w_position=w_position, w_velocity=w_velocity, w_control=w_control,
+                       w_terminal_position=w_terminal_position, w_terminal_velocity=w_terminal_velocity)
+        _check_settings(dt, dict(horizon=horizon, max_iter=max_iter, substeps=substeps), weights)
         if w_control <= 0.0:
             raise ConfigError(f"w_control must be > 0 so the problem is strictly convex in u, got {w_control!r}")
         if w_position + w_terminal_position <= 0.0:
@@ -308,6 +293,19 @@ class CartTrackingMPC:
         return SkillOutput(action, info)
 
 
+def _check_settings(dt: float, counts: dict[str, Any], weights: dict[str, float]) -> None:
+    """The settings both NMPCs share: a positive step ``dt``, integer counts >= 1 (horizon, iterations...), finite
+    cost weights >= 0."""
+    if not (np.isfinite(dt) and dt > 0.0):
+        raise ConfigError(f"dt must be a positive number of seconds, got {dt!r}")
+    for name, value in counts.items():
+        if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1:
+            raise ConfigError(f"{name} must be an integer >= 1, got {value!r}")
+    for name, value in weights.items():
+        if not (np.isfinite(value) and value >= 0.0):
+            raise ConfigError(f"{name} must be a finite number >= 0, got {value!r}")
+
+
 def _shift(block: np.ndarray, width: int) -> np.ndarray:
     """Drop the first ``width`` entries of a stacked trajectory and repeat its last ``width`` entries at the end."""
     return np.concatenate([block[width:], block[-width:]])
@@ -355,15 +353,8 @@ class UprightMPC:
         w_terminal: float = 50.0,
         max_iter: int = 10,
     ) -> None:
-        if not (np.isfinite(dt) and dt > 0.0):
-            raise ConfigError(f"dt must be a positive number of seconds, got {dt!r}")
-        for name, value in (("horizon", horizon), ("max_iter", max_iter)):
-            if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1:
-                raise ConfigError(f"{name} must be an integer >= 1, got {value!r}")
-        weights = {"w_angle": w_angle, "w_velocity": w_velocity, "w_control": w_control, "w_terminal": w_terminal}
-        for name, value in weights.items():
-            if not (np.isfinite(value) and value >= 0.0):
-                raise ConfigError(f"{name} must be a finite number >= 0, got {value!r}")
+        weights = dict(w_angle=w_angle, w_velocity=w_velocity, w_control=w_control, w_terminal=w_terminal)
+        _check_settings(dt, dict(horizon=horizon, max_iter=max_iter), weights)
         if w_control <= 0.0:
             raise ConfigError(f"w_control must be > 0, got {w_control!r}")
         if w_angle + w_terminal <= 0.0:
