@@ -147,6 +147,25 @@ def test_time_limit_counts_frames_and_finished_episodes_are_logged(tmp_path):
     assert int(fields[2]) == 1 and float(fields[3]) == pytest.approx(total, abs=1e-3) and int(fields[4]) == 20
 
 
+def test_the_benchmark_reads_the_logged_training_episodes_and_leaves_out_evaluation_ones(tmp_path):
+    from hrtc.benchmark.metrics import best_window_mean, solved_at, training_episodes
+    from hrtc.episodes import eval_seeds
+
+    log = tmp_path / "episodes.csv"
+    task = envs.make("carracing", action_repeat=8, max_frames=16, episode_log=str(log), flatten=False)
+    evaluation_seed = eval_seeds(1, 10_000)[0]
+    for reset_seed in (5, evaluation_seed, 6):  # a training episode, an evaluation episode, a training episode
+        task.reset(seed=int(reset_seed))
+        truncated = False
+        while not truncated:
+            truncated = task.step(np.array([0.0, 0.5, 0.0], np.float32))[3]
+    read = training_episodes(tmp_path, seed=1, started=0.0, args={})
+    assert len(read["returns"]) == 2 and read["frames"] == 3 * 16
+    returns = np.array([1.0, 3.0, 5.0, 0.0, 10.0])
+    assert solved_at(returns, 2, 4.0) == 3 and solved_at(returns, 2, 5.0) == 5 and solved_at(returns, 2, 5.1) is None
+    assert best_window_mean(returns, 2) == 5.0 and best_window_mean(returns, 6) is None
+
+
 def test_same_seed_same_observations():
     def rollout(seed):
         task = envs.make("carracing", action_repeat=2)

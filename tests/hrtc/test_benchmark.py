@@ -159,6 +159,8 @@ def _bench(tmp_path: Path, *extra: str) -> subprocess.CompletedProcess:
     return subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, timeout=300)
 
 
+# slow (about 25 s, most of it starting Ray): the default run takes the same harness through a process pool
+@pytest.mark.slow
 def test_benchmark_end_to_end_through_a_local_ray(tmp_path: Path) -> None:
     pytest.importorskip("ray")
     proc = _bench(tmp_path, "algos=[ppo_beta,sb3_a2c]", "seeds=2", "backend=ray")

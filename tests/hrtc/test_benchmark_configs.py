@@ -106,6 +106,8 @@ def test_final_and_best_over_their_own_seeds_end_to_end(tmp_path: Path) -> None:
     assert "seeds 2,000,000 + 1000 seed + k of seed 0" in table and "Notes:" in table
 
 
+# slow (about 20 s): trains a panda run; the harness itself is covered by test_final_and_best_over_their_own_seeds
+@pytest.mark.slow
 def test_success_on_unseen_targets_end_to_end(tmp_path: Path) -> None:
     proc = _bench(tmp_path, "benchmark=panda_reach", "algos=[hrtc_beta]", "seeds=[1]", "budget=320",
                   "eval_every=320", "eval_episodes=1", "metric.episodes=2", "cpus=1",
@@ -122,6 +124,8 @@ def test_success_on_unseen_targets_end_to_end(tmp_path: Path) -> None:
     assert "| hrtc_beta, seed 1, best.pt | 2 |" in table and "## References over the same skills" in table
 
 
+# slow (about 30 s): CarRacing training; reading its episode log is tested in tests/envs/test_carracing.py
+@pytest.mark.slow
 def test_training_episodes_for_a_wall_time_budget_end_to_end(tmp_path: Path) -> None:
     proc = _bench(tmp_path, "benchmark=carracing", "algos=[hrtc_beta]", "budget=100000", "wall_minutes=0.4",
                   "eval_every=100000", "eval_episodes=1", "cpus=1", "cpus_per_run=1")  # fmt: skip
@@ -134,6 +138,8 @@ def test_training_episodes_for_a_wall_time_budget_end_to_end(tmp_path: Path) -> 
     assert (tmp_path / "out" / "episodes.png").stat().st_size > 5_000
 
 
+# slow (about 20 s): trains a child, then the tree over it
+@pytest.mark.slow
 def test_transfer_from_a_checkpoint_and_the_tree_trace_end_to_end(tmp_path: Path) -> None:
     budgets = [f"variants.{v}.budget=250" for v in ("tree", "finetune_long", "scratch_long")]
     proc = _bench(tmp_path, "benchmark=cartpole_swingup_tree", "algos=[tree,finetune_long,scratch_long]", "seeds=[1]",

@@ -57,7 +57,8 @@ def test_restoring_a_checkpoint_restores_every_generator_it_saved(tmp_path):
     assert _draws() == after_save
 
 
-@pytest.mark.parametrize("vector", ["sync", "async"])
+# sync is slow (about 12 s): the async vector env is the default one
+@pytest.mark.parametrize("vector", [pytest.param("sync", marks=pytest.mark.slow), "async"])
 def test_same_seed_same_evaluations(tmp_path, vector):
     Trainer(_cfg(1500, vector=vector), tmp_path / "a").train()
     Trainer(_cfg(1500, vector=vector), tmp_path / "b").train()
