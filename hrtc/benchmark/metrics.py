@@ -222,6 +222,22 @@ def best_window_mean(returns: np.ndarray, window: int) -> float | None:
     return float(np.convolve(returns, np.ones(window) / window, mode="valid").max())
 
 
+def running_scores(returns: np.ndarray, decay: float = 0.99) -> np.ndarray:
+    """The reference CarRacing implementation's running score after each episode: ``running <- decay running +
+    (1 - decay) score``, from 0 (xtma/pytorch_car_caring's ``train.py``; it calls the task solved above 900)."""
+    out, running = np.empty(len(returns)), 0.0
+    for i, score in enumerate(np.asarray(returns, float)):
+        running = decay * running + (1.0 - decay) * score
+        out[i] = running
+    return out
+
+
+def running_solved_at(returns: np.ndarray, threshold: float, decay: float = 0.99) -> int | None:
+    """The 1-based episode after which the running score (:func:`running_scores`) first exceeds ``threshold``."""
+    hit = np.flatnonzero(running_scores(returns, decay) > threshold)
+    return int(hit[0]) + 1 if len(hit) else None
+
+
 def training_episodes(run_dir: Path, seed: int, started: float, args: Mapping[str, Any]) -> dict[str, Any]:
     """The run's training episodes from its ``episodes.csv`` (the trainer's evaluation episodes, told apart by their
     reset seed, left out), in the order they finished; frames per second over training and evaluation."""
@@ -236,5 +252,6 @@ def training_episodes(run_dir: Path, seed: int, started: float, args: Mapping[st
     returns = train["return"].to_numpy(float)
     wall = float(log["wall_time"].max() - started) if len(log) else 0.0
     frames = int(log["frames"].sum())
-    return {"returns": returns.tolist(), "frames": frames, "wall_seconds": wall,
+    return {"returns": returns.tolist(), "true_returns": train["true_return"].to_numpy(float).tolist(),
+            "train_frames": train["frames"].to_numpy(int).tolist(), "frames": frames, "wall_seconds": wall,
             "frames_per_second": frames / wall if wall > 0 else math.nan}  # fmt: skip

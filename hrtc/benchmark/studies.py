@@ -137,18 +137,22 @@ def success_table(entries: Mapping[str, Mapping[str, Any]]) -> list[str]:
 
 def episodes_lines(by_algo: Mapping[str, Mapping[int, Any]], rule: SolveRule, metric: Mapping[str, Any],
                    out: Path) -> list[str]:  # fmt: skip
-    from hrtc.benchmark.metrics import best_window_mean, solved_at
+    from hrtc.benchmark.metrics import best_window_mean, running_scores, running_solved_at, solved_at
 
     windows = [int(w) for w in metric.get("windows", [10, 100])]
     paper = dict(metric.get("paper_episodes") or {})
     cutoff = int(metric.get("cutoff", 10_000))
     heads = " | ".join(f"best {w}-mean | solved (mean {rule.threshold:g} over {w})" for w in windows)
+    heads += f" | best running score | solved (running score > {rule.threshold:g})"
     lines = ["", "## Training episodes", "", "Returns of every training episode in the order they finished (the "
-             "trainer's evaluation episodes left out); frames/s over training and evaluation, updates included. "
-             "Projected hours: the paper's episodes-to-solve x 1000 frames at the measured frames/s.", "",
-             f"| run | episodes | frames | wall (min) | frames/s | last-10 mean | {heads} | paper: episodes to solve "
-             f"| projected h to the paper's episodes | projected h to {cutoff:,} episodes |",
-             "|---" * (9 + 2 * len(windows)) + "|"]  # fmt: skip
+             "trainer's evaluation episodes left out; a shaping task's shaped score, the one the learner saw, with "
+             "gymnasium's own return beside); frames/s over training and evaluation, updates included. Running score: "
+             "0.99 running + 0.01 score after each episode (the reference implementation's rule). Frames to a "
+             "solution: the training frames up to that episode. Projected hours: the paper's episodes-to-solve x "
+             "1000 frames at the measured frames/s.", "",
+             f"| run | episodes | frames | wall (min) | frames/s | last-10 mean | last-10 true return | {heads} "
+             f"| paper: episodes to solve | projected h to the paper's episodes | projected h to {cutoff:,} episodes |",
+             "|---" * (12 + 2 * len(windows)) + "|"]  # fmt: skip
     plotted = {}
     for algo, runs in by_algo.items():
         for seed, r in runs.items():
@@ -158,12 +162,18 @@ def episodes_lines(by_algo: Mapping[str, Mapping[int, Any]], rule: SolveRule, me
             x = np.asarray(log["returns"], float)
             plotted[f"{algo} seed {seed}"] = (x, r["curve"])
             fps = log["frames_per_second"]
+            frames_to = np.cumsum(log.get("train_frames") or np.zeros(len(x), int))
             cells = []
             for w in windows:
                 best, at = best_window_mean(x, w), solved_at(x, w, rule.threshold)
-                cells += ["n/a" if best is None else f"{best:.0f}", "not reached" if at is None else f"episode {at}"]
+                cells += ["n/a" if best is None else f"{best:.0f}", _reached(at, frames_to)]
+            running = running_scores(x)
+            cells += [f"{running.max():.0f}" if len(x) else "n/a",
+                      _reached(running_solved_at(x, rule.threshold), frames_to)]  # fmt: skip
             ok = fps and math.isfinite(fps)
             last10 = f"{x[-10:].mean():.0f}" if len(x) >= 10 else "n/a"
+            true10 = np.asarray(log.get("true_returns") or [math.nan], float)[-10:]
+            last10 += f" | {true10.mean():.0f}" if len(x) >= 10 and np.isfinite(true10).all() else " | n/a"
             hours = [n * 1000 / fps / 3600 if ok else math.nan for n in (paper.get(algo), cutoff) if n is not None]
             lines.append(f"| {algo} seed {seed} | {len(x)} | {log['frames']:,} | {log['wall_seconds'] / 60:.1f} "
                          f"| {fps:.0f} | {last10} | {' | '.join(cells)} "
@@ -177,6 +187,13 @@ def episodes_lines(by_algo: Mapping[str, Mapping[int, Any]], rule: SolveRule, me
         _plot_episodes(plotted, rule.threshold, windows[0], out / "episodes.png")
         lines += ["", "![training episodes](episodes.png)"]
     return lines
+
+
+def _reached(episode: int | None, frames_to: np.ndarray) -> str:
+    """A solve rule's cell: the episode that reached it and the training frames up to it (when they were logged)."""
+    if episode is None:
+        return "not reached"
+    return f"episode {episode}" + (f" ({frames_to[episode - 1]:,} frames)" if frames_to[-1] else "")
 
 
 def _plot_episodes(plotted: Mapping[str, Any], threshold: float, window: int, path: Path) -> None:

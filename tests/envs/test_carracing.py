@@ -148,7 +148,7 @@ def test_time_limit_counts_frames_and_finished_episodes_are_logged(tmp_path):
 
 
 def test_the_benchmark_reads_the_logged_training_episodes_and_leaves_out_evaluation_ones(tmp_path):
-    from hrtc.benchmark.metrics import best_window_mean, solved_at, training_episodes
+    from hrtc.benchmark.metrics import best_window_mean, running_scores, running_solved_at, solved_at, training_episodes
     from hrtc.episodes import eval_seeds
 
     log = tmp_path / "episodes.csv"
@@ -160,7 +160,14 @@ def test_the_benchmark_reads_the_logged_training_episodes_and_leaves_out_evaluat
         while not truncated:
             truncated = task.step(np.array([0.0, 0.5, 0.0], np.float32))[3]
     read = training_episodes(tmp_path, seed=1, started=0.0, args={})
-    assert len(read["returns"]) == 2 and read["frames"] == 3 * 16
+    assert len(read["returns"]) == 2 and read["frames"] == 3 * 16 and read["train_frames"] == [16, 16]
+    assert len(read["true_returns"]) == 2 and np.isfinite(read["true_returns"]).all()
+    # The reference's running score: a constant score s gives s (1 - 0.99^n) after n episodes.
+    np.testing.assert_allclose(
+        running_scores(np.full(300, 950.0))[[0, 99, 299]], 950 * (1 - 0.99 ** np.array([1, 100, 300]))
+    )
+    assert running_solved_at(np.full(400, 950.0), 900.0) == int(np.ceil(np.log(1 - 900 / 950) / np.log(0.99)))
+    assert running_solved_at(np.full(400, 899.0), 900.0) is None
     returns = np.array([1.0, 3.0, 5.0, 0.0, 10.0])
     assert solved_at(returns, 2, 4.0) == 3 and solved_at(returns, 2, 5.0) == 5 and solved_at(returns, 2, 5.1) is None
     assert best_window_mean(returns, 2) == 5.0 and best_window_mean(returns, 6) is None

@@ -237,3 +237,25 @@ def test_sb3_sac_acts_on_the_composed_env_and_counts_env_steps(tmp_path: Path) -
     result = run(RunSpec("cartpole_swingup", "sb3_sac_composed", 1, 500, 500, 1, str(tmp_path), final_episodes=1))
     assert result["curve"]["step"] == [0, 500]
     assert len(result["final_returns"]) == 1 and result["final_returns"][0] >= 0
+
+
+def test_the_episodes_table_reports_each_solve_rule_with_its_episode_and_frames(tmp_path: Path) -> None:
+    from hrtc.benchmark.report import SolveRule
+    from hrtc.benchmark.studies import episodes_lines
+
+    # 600 episodes of 800 frames: scores climb 0 -> 1000 linearly, gymnasium's returns 100 lower.
+    scores = np.linspace(0.0, 1000.0, 600)
+    log = {"returns": scores.tolist(), "true_returns": (scores - 100).tolist(), "train_frames": [800] * 600,
+           "frames": 600 * 800, "wall_seconds": 600.0, "frames_per_second": 800.0}  # fmt: skip
+    curve = {"episodes": [0, 600], "episode_reward": [0.0, 950.0]}
+    lines = episodes_lines({"ppo_beta": {1: {"episodes_log": log, "curve": curve}}}, SolveRule(900.0, 10),
+                           {"windows": [10]}, tmp_path)  # fmt: skip
+    row = next(line for line in lines if line.startswith("| ppo_beta seed 1 |"))
+    cells = [c.strip() for c in row.strip("|").split("|")]
+    header = next(line for line in lines if line.startswith("| run |"))
+    assert len(cells) == len(header.strip("|").split("|"))
+    first_10_mean = int(np.flatnonzero(np.convolve(scores, np.ones(10) / 10, "valid") >= 900)[0]) + 10
+    assert f"episode {first_10_mean} ({first_10_mean * 800:,} frames)" in cells
+    # The running score lags the scores: it never passes 900 while they climb to 1000.
+    assert "not reached" in cells and cells[6] == f"{(scores[-10:] - 100).mean():.0f}"
+    assert (tmp_path / "episodes.png").stat().st_size > 5_000
