@@ -13,7 +13,8 @@ reference rules, the metric plug-in, notes), under the command line's ``key=valu
 Writes into ``out`` (default ``benchmarks/results/<task>/<benchmark name, else table1>``): results.json (every run's
 raw evaluation curve, rewritten after each finished run; runs already in it are skipped, so a killed benchmark
 continues), table.md, curves.png, summary.json, command.txt, machine.txt. Training files of each run go to
-``runs_dir`` (not committed). Several invocations with disjoint ``seeds`` may share one ``out``; ``report_only=true``
+``runs_dir`` (not committed); a trainer run killed midway resumes there from its last evaluation's checkpoint, so
+long studies can be spread over several sittings. Several invocations with disjoint ``seeds`` may share one ``out``; ``report_only=true``
 with all the seeds then writes the table of them all and prunes runs of other settings from results.json.
 """
 

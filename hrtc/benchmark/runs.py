@@ -8,10 +8,16 @@ solved the task is decided afterwards, in :mod:`hrtc.benchmark.report`, so the s
 stored results.
 
 The result dict is JSON-serialisable: it travels back from a Ray worker or a pool process and is cached on disk.
+
+A trainer run that was killed (a machine that went away, a sitting that ended) resumes where its run directory's
+``checkpoints/last.pt`` left it when the benchmark is started again: the checkpoint is written at every evaluation,
+and the evaluation curve so far (``curve.json``) and the episode log are kept up to it. Stable-baselines3 runs
+restart from scratch.
 """
 
 from __future__ import annotations
 
+import json
 import platform
 import shutil
 import time
@@ -125,6 +131,7 @@ def run(spec: RunSpec) -> dict[str, Any]:
     tic = time.perf_counter()
     extra = _trainer_run(spec) if family == "trainer" else _sb3_run(spec)
     curve = extra.pop("curve")
+    wall_before = extra.pop("wall_before", 0.0)  # a resumed run's earlier sittings
     settings = SETTINGS[spec.builtin]
     if not spec.root_ppo and ALGORITHMS[spec.builtin][1][0] == "ppo":
         settings = settings.split(":")[0] + ": the task config's PPO settings"
@@ -134,7 +141,7 @@ def run(spec: RunSpec) -> dict[str, Any]:
         "env_steps": int(curve["step"][-1]),
         "curve": curve,
         **extra,
-        "wall_seconds": time.perf_counter() - tic,
+        "wall_seconds": wall_before + time.perf_counter() - tic,
         "settings": settings,
         "host": platform.node(),
     }
@@ -161,6 +168,16 @@ class _EvalCollector:
         minutes = spec.wall_minutes
         self.deadline = None if minutes is None else time.perf_counter() + 60.0 * minutes
 
+    def restore(self, step: int, wall_before: float) -> None:
+        """A resumed run's curve: the evaluations its earlier sittings saved (``curve.json``) up to the checkpoint's
+        ``step``; the wall-time budget counts the ``wall_before`` seconds they trained."""
+        path = Path(self.spec.run_dir) / "curve.json"
+        saved = json.loads(path.read_text()) if path.exists() else {}
+        keep = [i for i, s in enumerate(saved.get("step", [])) if s <= step]
+        self.curve = {k: [saved[k][i] for i in keep] for k in CURVE_KEYS}
+        if self.deadline is not None:
+            self.deadline -= wall_before
+
     def write(self, stream: str, step: int, metrics: Mapping[str, float]) -> None:
         if stream == "train":
             self.sps.append(float(metrics.get("charts/SPS", float("nan"))))
@@ -176,6 +193,7 @@ class _EvalCollector:
         self.curve["episodes"].append(int(metrics["train_episodes"]))
         self.curve["wall_seconds"].append(float(metrics["wall_seconds"]))
         self.curve["solve_reward"].append(confirm_solve(self.spec, self.curve, self._returns))
+        (Path(self.spec.run_dir) / "curve.json").write_text(json.dumps(self.curve))
 
     def _returns(self, seeds: list[int]) -> np.ndarray:
         from hrtc.episodes import evaluate
@@ -196,7 +214,7 @@ def trainer_overrides(spec: RunSpec) -> list[str]:
         f"eval_every={spec.eval_every}", f"eval_episodes={spec.eval_episodes}", "progress=false",
         # One core: the envs step in this process. With more, each env (and its skills) gets its own process.
         f"vector={'async' if spec.cpus > 1 else 'sync'}", f"torch_threads={max(1, spec.cpus // 2)}",
-        f"checkpoint_every={spec.steps}",  # the benchmark restarts unfinished runs: one checkpoint at the end suffices
+        f"checkpoint_every={spec.eval_every}",  # a killed run resumes from its last evaluation
     ]  # fmt: skip
     root = root_config()
     if "logger" in root:
@@ -239,11 +257,19 @@ def _trainer_run(spec: RunSpec) -> dict[str, Any]:
     GlobalHydra.instance().clear()
     run_cfg = RunConfig.from_mapping(OmegaConf.to_container(cfg, resolve=True))  # type: ignore[arg-type]
     (Path(spec.run_dir) / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
-    (Path(spec.run_dir) / "episodes.csv").unlink(missing_ok=True)  # a restarted run logs its episodes afresh
+    last = Path(spec.run_dir) / "checkpoints" / "last.pt"
+    resume = last.exists()
+    if resume:  # the episodes that finished after the checkpoint are trained again
+        keep_episodes_until(Path(spec.run_dir) / "episodes.csv", last.stat().st_mtime)
+    else:
+        (Path(spec.run_dir) / "episodes.csv").unlink(missing_ok=True)
     collector = _EvalCollector(spec)
-    trainer = Trainer(run_cfg, spec.run_dir, sinks=[collector])
+    trainer = Trainer(run_cfg, spec.run_dir, sinks=[collector], resume=resume)
     collector.trainer = trainer
-    started = time.time()
+    wall_before = trainer.wall_offset  # the seconds earlier sittings trained (0 for a fresh run)
+    if resume:
+        collector.restore(trainer.global_step, wall_before)
+    started = time.time() - wall_before  # the run's wall time includes its earlier sittings
     try:
         trainer.train()
     except KeyboardInterrupt:
@@ -252,7 +278,7 @@ def _trainer_run(spec: RunSpec) -> dict[str, Any]:
     from hrtc.benchmark import metrics
 
     best = Path(spec.run_dir) / "checkpoints" / "best.pt"
-    out: dict[str, Any] = {"curve": collector.curve, "train_sps": _median(collector.sps)}
+    out: dict[str, Any] = {"curve": collector.curve, "train_sps": _median(collector.sps), "wall_before": wall_before}
     out["final_returns"] = collector._returns(final_seeds(spec)).tolist() if spec.final_episodes else []
     if spec.final_best and spec.final_episodes:
         out["best_returns"] = metrics.checkpoint_returns(best, final_seeds(spec)).tolist()
@@ -260,6 +286,15 @@ def _trainer_run(spec: RunSpec) -> dict[str, Any]:
         Path(spec.export).parent.mkdir(parents=True, exist_ok=True)
         shutil.copyfile(best, spec.export)
     return {**out, **metrics.after_training(spec, started)}
+
+
+def keep_episodes_until(path: Path, wall_time: float) -> None:
+    """Drop the lines of an episode log (first column: the episode's end, epoch seconds) that end after
+    ``wall_time``."""
+    if not path.exists():
+        return
+    lines = path.read_text().splitlines(keepends=True)
+    path.write_text("".join(line for line in lines if line.strip() and float(line.split(",", 1)[0]) <= wall_time))
 
 
 def _median(values: list[float]) -> float | None:

@@ -259,3 +259,21 @@ def test_the_episodes_table_reports_each_solve_rule_with_its_episode_and_frames(
     # The running score lags the scores: it never passes 900 while they climb to 1000.
     assert "not reached" in cells and cells[6] == f"{(scores[-10:] - 100).mean():.0f}"
     assert (tmp_path / "episodes.png").stat().st_size > 5_000
+
+
+def test_a_resumed_run_keeps_its_curve_and_episode_log_up_to_its_checkpoint(tmp_path: Path) -> None:
+    from hrtc.benchmark.runs import _EvalCollector, keep_episodes_until
+
+    log = tmp_path / "episodes.csv"
+    log.write_text("100.5,1,7,12.0,800\n200.0,1,8,30.0,900\n300.25,2,9,41.0,1000\n")
+    keep_episodes_until(log, 200.0)
+    assert log.read_text() == "100.5,1,7,12.0,800\n200.0,1,8,30.0,900\n"
+    spec = RunSpec(task="cartpole_swingup", algo="hrtc_beta", seed=1, steps=3000, eval_every=1000, eval_episodes=1,
+                   run_dir=str(tmp_path), wall_minutes=10.0)  # fmt: skip
+    saved = {k: [0, 1000, 2000] if k == "step" else [1.0, 2.0, 3.0] for k in CURVE_KEYS}
+    (tmp_path / "curve.json").write_text(json.dumps(saved))
+    collector = _EvalCollector(spec)
+    deadline = collector.deadline
+    collector.restore(step=1000, wall_before=120.0)  # the checkpoint was saved at step 1000, after 2 minutes
+    assert collector.curve["step"] == [0, 1000] and collector.curve["episode_reward"] == [1.0, 2.0]
+    assert collector.deadline == pytest.approx(deadline - 120.0)

@@ -9,9 +9,11 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from hrtc.benchmark.main import benchmark_names, check, parse, specs_of
+from hrtc.checkpoint import load_checkpoint
 
 ROOT = Path(__file__).resolve().parents[2]
 STUDIES = {
@@ -153,3 +155,37 @@ def test_transfer_from_a_checkpoint_and_the_tree_trace_end_to_end(tmp_path: Path
     assert "- median steps to 300, finetune_long / scratch_long: **" in table
     assert "| tree | cartpole_swingup_tree |" in table and "swing: hrtc-beta policy from cartpole_energy" in table
     assert (tmp_path / "out" / "tree_weights.csv").read_text().startswith("env_step,pole_angle,")
+
+
+# slow (about 30 s idle): two benchmark processes, the first killed mid-run
+@pytest.mark.slow
+def test_a_killed_benchmark_run_resumes_from_its_last_evaluation(tmp_path: Path) -> None:
+    import os
+    import signal
+    import time
+
+    args = ["benchmark=lunarlander", "algos=[hrtc_beta]", "seeds=[1]", "budget=4000", "eval_every=500",
+            "eval_episodes=1", "solve_episodes=1", "final_episodes=0", "references=false", "cpus=1"]  # fmt: skip
+    cmd = [sys.executable, str(ROOT / "scripts" / "benchmark.py"), f"out={tmp_path / 'out'}",
+           f"runs_dir={tmp_path / 'runs'}", "backend=process", "progress=false", *args]  # fmt: skip
+    run_dir = tmp_path / "runs" / "hrtc_beta" / "seed1"
+    first = subprocess.Popen(cmd, cwd=ROOT, start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    deadline = time.monotonic() + 240
+    while time.monotonic() < deadline and first.poll() is None:
+        curve = run_dir / "curve.json"
+        if curve.exists() and len(json.loads(curve.read_text() or "{}").get("step", [])) >= 3:
+            break
+        time.sleep(0.2)
+    os.killpg(first.pid, signal.SIGKILL)
+    first.wait()
+    assert not (tmp_path / "out" / "results.json").exists() or "hrtc_beta/seed1" not in _read(tmp_path)[0]["runs"]
+    killed_at = load_checkpoint(run_dir / "checkpoints" / "last.pt")["global_step"]
+    assert 500 <= killed_at < 4000
+    proc = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    run = _read(tmp_path)[0]["runs"]["hrtc_beta/seed1"]
+    steps = run["curve"]["step"]
+    # The first sitting's evaluations (from step 0) continue without a gap or a repeat to the budget.
+    assert steps[0] == 0 and steps[-1] >= 4000 and np.all(np.diff(steps) == steps[1])
+    assert load_checkpoint(run_dir / "checkpoints" / "last.pt")["global_step"] >= 4000
+    assert run["wall_seconds"] >= run["curve"]["wall_seconds"][-1]  # both sittings
