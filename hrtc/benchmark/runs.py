@@ -169,14 +169,29 @@ class _EvalCollector:
         self.deadline = None if minutes is None else time.perf_counter() + 60.0 * minutes
 
     def restore(self, step: int, wall_before: float) -> None:
-        """A resumed run's curve: the evaluations its earlier sittings saved (``curve.json``) up to the checkpoint's
+        """A resumed run's curve: the evaluations its earlier sittings saved (``curve.json``; without it, the run's
+        ``eval.csv``, as for a run started by ``scripts/train.py`` in the same directory) up to the checkpoint's
         ``step``; the wall-time budget counts the ``wall_before`` seconds they trained."""
         path = Path(self.spec.run_dir) / "curve.json"
-        saved = json.loads(path.read_text()) if path.exists() else {}
+        saved = json.loads(path.read_text()) if path.exists() else self._from_eval_csv()
         keep = [i for i, s in enumerate(saved.get("step", [])) if s <= step]
         self.curve = {k: [saved[k][i] for i in keep] for k in CURVE_KEYS}
         if self.deadline is not None:
             self.deadline -= wall_before
+
+    def _from_eval_csv(self) -> dict[str, list[Any]]:
+        import pandas as pd
+
+        path = Path(self.spec.run_dir) / "eval.csv"
+        if not path.exists() or not path.stat().st_size:
+            return {}
+        rows = pd.read_csv(path)
+        rewards = rows["episode_reward"].tolist()
+        return {"step": rows["step"].astype(int).tolist(), "episode_reward": rewards,
+                "episode_reward_std": rows["episode_reward_std"].tolist(),
+                "episodes": rows["train_episodes"].astype(int).tolist(), "wall_seconds": rows["wall_seconds"].tolist(),
+                # a confirming rule's extra episodes were not logged: those evaluations count as unconfirmed
+                "solve_reward": [None if self.spec.confirms else r for r in rewards]}  # fmt: skip
 
     def write(self, stream: str, step: int, metrics: Mapping[str, float]) -> None:
         if stream == "train":
@@ -259,15 +274,14 @@ def _trainer_run(spec: RunSpec) -> dict[str, Any]:
     (Path(spec.run_dir) / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
     last = Path(spec.run_dir) / "checkpoints" / "last.pt"
     resume = last.exists()
-    if resume:  # the episodes that finished after the checkpoint are trained again
-        keep_episodes_until(Path(spec.run_dir) / "episodes.csv", last.stat().st_mtime)
-    else:
+    if not resume:
         (Path(spec.run_dir) / "episodes.csv").unlink(missing_ok=True)
     collector = _EvalCollector(spec)
     trainer = Trainer(run_cfg, spec.run_dir, sinks=[collector], resume=resume)
     collector.trainer = trainer
     wall_before = trainer.wall_offset  # the seconds earlier sittings trained (0 for a fresh run)
-    if resume:
+    if resume:  # the episodes that finished after the checkpoint are trained again
+        keep_logged_episodes(Path(spec.run_dir) / "episodes.csv", last.stat().st_mtime, trainer.episodes, spec.seed)
         collector.restore(trainer.global_step, wall_before)
     started = time.time() - wall_before  # the run's wall time includes its earlier sittings
     try:
@@ -288,13 +302,27 @@ def _trainer_run(spec: RunSpec) -> dict[str, Any]:
     return {**out, **metrics.after_training(spec, started)}
 
 
-def keep_episodes_until(path: Path, wall_time: float) -> None:
-    """Drop the lines of an episode log (first column: the episode's end, epoch seconds) that end after
-    ``wall_time``."""
+def keep_logged_episodes(path: Path, wall_time: float, train_episodes: int, seed: int) -> None:
+    """Trim an episode log (``wall_time, pid, reset_seed, ...`` per line) to what a checkpoint holds: its first
+    ``train_episodes`` training episodes and the evaluation episodes (reset seeds of :func:`hrtc.episodes.eval_seeds`
+    of run seed ``seed``) that ended by ``wall_time``. An interrupted PPO run's checkpoint is rewound to its last
+    update: the episodes of the rollout it redoes are logged again on resume."""
+    from hrtc.episodes import eval_seeds
+
     if not path.exists():
         return
-    lines = path.read_text().splitlines(keepends=True)
-    path.write_text("".join(line for line in lines if line.strip() and float(line.split(",", 1)[0]) <= wall_time))
+    evaluation = {str(s) for s in eval_seeds(seed, 10_000)}
+    rows = sorted((float(line.split(",", 3)[0]), line) for line in path.read_text().splitlines(keepends=True)
+                  if line.strip())  # fmt: skip
+    kept, trained = [], 0
+    for end, line in rows:
+        if line.split(",", 3)[2] in evaluation:
+            if end <= wall_time:
+                kept.append(line)
+        elif trained < train_episodes:
+            kept.append(line)
+            trained += 1
+    path.write_text("".join(kept))
 
 
 def _median(values: list[float]) -> float | None:

@@ -262,12 +262,18 @@ def test_the_episodes_table_reports_each_solve_rule_with_its_episode_and_frames(
 
 
 def test_a_resumed_run_keeps_its_curve_and_episode_log_up_to_its_checkpoint(tmp_path: Path) -> None:
-    from hrtc.benchmark.runs import _EvalCollector, keep_episodes_until
+    from hrtc.benchmark.runs import _EvalCollector, keep_logged_episodes
+    from hrtc.episodes import eval_seeds
 
     log = tmp_path / "episodes.csv"
-    log.write_text("100.5,1,7,12.0,800\n200.0,1,8,30.0,900\n300.25,2,9,41.0,1000\n")
-    keep_episodes_until(log, 200.0)
-    assert log.read_text() == "100.5,1,7,12.0,800\n200.0,1,8,30.0,900\n"
+    evaluation = eval_seeds(1, 2)
+    # Four training episodes and two evaluation episodes; the checkpoint (saved at 250.0) counted three training
+    # episodes: the fourth belongs to a rollout the resumed run redoes, as does the evaluation after it.
+    lines = ["100.5,1,-1,12.0,800\n", f"150.0,1,{evaluation[0]},5.0,1000\n", "200.0,2,-1,30.0,900\n",
+             "240.0,1,-1,31.0,900\n", "260.0,2,-1,41.0,1000\n", f"270.0,1,{evaluation[1]},6.0,1000\n"]  # fmt: skip
+    log.write_text("".join([lines[2], lines[0], *lines[3:], lines[1]]))  # appended out of order by two workers
+    keep_logged_episodes(log, 250.0, train_episodes=3, seed=1)
+    assert log.read_text() == "".join(lines[:4])
     spec = RunSpec(task="cartpole_swingup", algo="hrtc_beta", seed=1, steps=3000, eval_every=1000, eval_episodes=1,
                    run_dir=str(tmp_path), wall_minutes=10.0)  # fmt: skip
     saved = {k: [0, 1000, 2000] if k == "step" else [1.0, 2.0, 3.0] for k in CURVE_KEYS}
@@ -277,3 +283,18 @@ def test_a_resumed_run_keeps_its_curve_and_episode_log_up_to_its_checkpoint(tmp_
     collector.restore(step=1000, wall_before=120.0)  # the checkpoint was saved at step 1000, after 2 minutes
     assert collector.curve["step"] == [0, 1000] and collector.curve["episode_reward"] == [1.0, 2.0]
     assert collector.deadline == pytest.approx(deadline - 120.0)
+
+
+def test_a_run_started_by_train_py_is_adopted_from_its_eval_csv(tmp_path: Path) -> None:
+    from hrtc.benchmark.runs import _EvalCollector
+
+    (tmp_path / "eval.csv").write_text(
+        "step,episode_reward,episode_reward_std,episodes,train_episodes,wall_seconds\n"
+        "0,5.0,1.0,3,0,2.0\n25000,40.0,3.0,3,180,900.0\n50000,80.0,2.0,3,350,1800.0\n"
+    )
+    spec = RunSpec(task="carracing_paper", algo="ppo_beta", seed=1, steps=100_000, eval_every=25_000,
+                   eval_episodes=3, run_dir=str(tmp_path))  # fmt: skip
+    collector = _EvalCollector(spec)
+    collector.restore(step=25_000, wall_before=900.0)
+    assert collector.curve["step"] == [0, 25_000] and collector.curve["episodes"] == [0, 180]
+    assert collector.curve["solve_reward"] == [5.0, 40.0] and collector.deadline is None

@@ -25,6 +25,7 @@ STUDIES = {
     "lunarlander": ("lunarlander", "lunarlander/core", 15),
     "panda_reach": ("panda_reach", "panda_reach", 3),
     "carracing": ("carracing", "carracing/sitting_45min", 2),
+    "carracing_table1": ("carracing_paper", "carracing/table1", 12),
 }
 
 
@@ -70,7 +71,10 @@ def _bench(tmp_path: Path, *args: str) -> subprocess.CompletedProcess:
 @pytest.mark.parametrize(
     "args,expected",
     [
-        (["benchmark=nope"], "error: unknown benchmark 'nope'; valid benchmarks: carracing, cartpole_swingup_core"),
+        (
+            ["benchmark=nope"],
+            "error: unknown benchmark 'nope'; valid benchmarks: carracing, carracing_table1, cartpole_swingup_core",
+        ),
         (["benchmark=lunarlander", "variants.sb3_sac.colour=1"], "error: unknown key 'colour' in variants.sb3_sac"),
         (["benchmark=lunarlander", "variants.x.base=sac"], "error: unknown variants.x.base 'sac'; valid"),
         (["benchmark=panda_reach", "metric.targets=3"], "error: unknown key 'targets' in metric; the success metric"),
