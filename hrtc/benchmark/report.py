@@ -294,7 +294,10 @@ def headline(
         f"{ref_label}: env steps to solve, median {_num(ref_med, budget)}, IQM {_num(ref_iqm, budget)}, "
         f"IQR {_spread(ref_iqr)} (an unsolved run counts as needing infinitely many steps)."
     ]
-    if not losses:
+    if not wins and not losses:
+        lines.append("No other algorithm ran in this table: no headline (compare with the references and the other "
+                     "tables of this task).")  # fmt: skip
+    elif not losses:
         lines.append(f"**Headline holds**: {ref_label} needs fewer env steps to solve than every other algorithm, "
                      "by median and IQM, with a smaller interquartile range.")  # fmt: skip
     else:

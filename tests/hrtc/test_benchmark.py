@@ -144,6 +144,11 @@ def test_headline_says_where_hrtc_does_not_win() -> None:
     assert "does not fully hold" in tie and "PPO Beta" in tie.split("Not against:")[1]
 
 
+def test_a_table_of_one_algorithm_claims_no_headline() -> None:
+    text = "\n".join(headline(_outcomes({"hrtc_beta": [1000, None]})))
+    assert "no headline" in text and "Headline holds" not in text
+
+
 def test_headline_names_runs_that_met_the_rule_before_any_update() -> None:
     text = "\n".join(headline(_outcomes({"hrtc_beta": [0, 4000, 0], "ppo_beta": [8000, None, None]})))
     assert "HRTC Beta (PPO): 2 of 3 runs (seeds 1, 3) met the rule at step 0" in text
