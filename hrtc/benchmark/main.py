@@ -14,8 +14,9 @@ Writes into ``out`` (default ``benchmarks/results/<task>/<benchmark name, else t
 raw evaluation curve, rewritten after each finished run; runs already in it are skipped, so a killed benchmark
 continues), table.md, curves.png, summary.json, command.txt, machine.txt. Training files of each run go to
 ``runs_dir`` (not committed); a trainer run killed midway resumes there from its last evaluation's checkpoint, so
-long studies can be spread over several sittings. Several invocations with disjoint ``seeds`` may share one ``out``; ``report_only=true``
-with all the seeds then writes the table of them all and prunes runs of other settings from results.json.
+long studies can be spread over several sittings. Several invocations with disjoint ``seeds`` may share one ``out``;
+``report_only=true`` with all the seeds then writes the table of them all and prunes runs of other settings from
+results.json.
 """
 
 from __future__ import annotations
