@@ -229,8 +229,9 @@ def sac_losses(policy: nn.Module, critics: TwinQ, target_critics: TwinQ, batch: 
     with torch.no_grad():
         next_w, next_logp = rsample_with_logp(policy.distribution(batch.next_obs))
         next_q = target_critics(batch.next_obs, next_w)
-        target = soft_q_target(batch.rewards, batch.terminated, next_q[0], next_q[1], next_logp, temperature,
-                               batch.discount)
+        target = soft_q_target(
+            batch.rewards, batch.terminated, next_q[0], next_q[1], next_logp, temperature, batch.discount
+        )
     q_loss = ((critics(batch.obs, batch.samples) - target) ** 2).mean(-1).sum()
     w, logp = rsample_with_logp(policy.distribution(batch.obs))
     q_pi = critics(batch.obs, w).min(0).values
