@@ -68,3 +68,10 @@ def test_bad_settings() -> None:
         AcrobotUprightMPC(horizon=0)
     with pytest.raises(ConfigError):
         AcrobotUprightMPC(w_control=-1.0)
+
+
+def test_passes_check_skill(catch: AcrobotUprightMPC) -> None:
+    from hrtc.check import check_skill, task_states
+
+    env = envs.make("acrobot_swingup")
+    check_skill(catch, task_states(env, n=20), env.action_space)
