@@ -93,8 +93,13 @@ class CartTrackingMPC:
         max_iter: int = 15,
         substeps: int = 1,
     ) -> None:
-        weights = dict(w_position=w_position, w_velocity=w_velocity, w_control=w_control,
-                       w_terminal_position=w_terminal_position, w_terminal_velocity=w_terminal_velocity)
+        weights = dict(
+            w_position=w_position,
+            w_velocity=w_velocity,
+            w_control=w_control,
+            w_terminal_position=w_terminal_position,
+            w_terminal_velocity=w_terminal_velocity,
+        )
         _check_settings(dt, dict(horizon=horizon, max_iter=max_iter, substeps=substeps), weights)
         if w_control <= 0.0:
             raise ConfigError(f"w_control must be > 0 so the problem is strictly convex in u, got {w_control!r}")
