@@ -108,14 +108,20 @@ def test_smooth_l1_value_loss_by_hand():
         value_loss(predicted, target, "l3")
 
 
-def test_reference_minibatches_are_128_with_the_remainder_last():
+def _on_policy_batch(n: int, advantages: torch.Tensor, returns: torch.Tensor) -> tuple[ActorCritic, Batch]:
+    """A small Beta actor-critic (seed 0) and ``n`` transitions sampled from it on random observations."""
     torch.manual_seed(0)
     policy = ActorCritic(3, 2, "beta", (8,))
-    obs = torch.randn(2000, 3)
+    obs = torch.randn(n, 3)
     with torch.no_grad():
         d = policy.distribution(obs)
         u = d.sample()
-        batch = Batch(obs, u, d.log_prob(u), torch.randn(2000), torch.randn(2000), policy.value(obs))
+        return policy, Batch(obs, u, d.log_prob(u), advantages, returns, policy.value(obs))
+
+
+def test_reference_minibatches_are_128_with_the_remainder_last():
+    torch.manual_seed(1)  # the advantages and returns (the helper seeds the policy and samples itself)
+    policy, batch = _on_policy_batch(2000, torch.randn(2000), torch.randn(2000))
     cfg = PPOConfig(**{**REFERENCE_PPO, "update_epochs": 2})
     opt = torch.optim.Adam(policy.parameters(), lr=cfg.learning_rate, eps=cfg.adam_eps)
     stats = ppo_update(policy, opt, batch, cfg, torch.Generator().manual_seed(0))
@@ -124,13 +130,7 @@ def test_reference_minibatches_are_128_with_the_remainder_last():
 
 def test_without_clipping_a_large_gradient_moves_the_weights_further():
     def first_step(max_grad_norm):
-        torch.manual_seed(0)
-        policy = ActorCritic(3, 2, "beta", (8,))
-        obs = torch.randn(64, 3)
-        with torch.no_grad():
-            d = policy.distribution(obs)
-            u = d.sample()
-            batch = Batch(obs, u, d.log_prob(u), torch.zeros(64), torch.full((64,), 1e3), policy.value(obs))
+        policy, batch = _on_policy_batch(64, torch.zeros(64), torch.full((64,), 1e3))
         before = [p.detach().clone() for p in policy.parameters()]
         cfg = PPOConfig(update_epochs=1, num_minibatches=1, max_grad_norm=max_grad_norm, norm_adv=False)
         ppo_update(policy, torch.optim.SGD(policy.parameters(), lr=1e-3), batch, cfg, torch.Generator())
