@@ -317,7 +317,8 @@ def _kind(path: Path) -> str:
 
 
 def build_env(task: str, algo: str, skills: Mapping[str, Any], action_filter: str = "sum",
-              env_kwargs: Mapping[str, Any] | None = None, decision_every: int = 1, seed: int = 0) -> Any:  # fmt: skip
+              env_kwargs: Mapping[str, Any] | None = None, decision_every: int = 1, seed: int = 0,
+              weight_margin: float = 0.0) -> Any:  # fmt: skip
     """:func:`hrtc.environments.make_env`, reset once with ``seed`` (the skills' first proposals: a wrong action size is
     found now), with a task's refusal of its ``env_kwargs`` as :class:`ConfigError` (one line) instead of a
     ``TypeError`` from deep in its constructor. The caller closes it."""
@@ -328,7 +329,7 @@ def build_env(task: str, algo: str, skills: Mapping[str, Any], action_filter: st
     if task not in envs.names():
         raise UnknownNameError("task", task, envs.names())
     try:
-        env = make_env(task, algo, skills, action_filter, env_kwargs, decision_every)
+        env = make_env(task, algo, skills, action_filter, env_kwargs, decision_every, weight_margin=weight_margin)
     except HRTCError:
         raise
     except (TypeError, ValueError) as error:
@@ -419,7 +420,8 @@ def prepare_run(args: Sequence[str], config_name: str = "config") -> list[str]:
         if run_dir is not None:
             output_path()("hydra.run.dir", run_dir)
         # The task, its env_kwargs and skills, built and reset once as the trainer will (here, before any write).
-        env = build_env(run.task, run.algo, run.skills, run.action_filter, run.env_kwargs, run.decision_every, run.seed)
+        env = build_env(run.task, run.algo, run.skills, run.action_filter, run.env_kwargs, run.decision_every, run.seed,
+                        weight_margin=run.weight_margin)  # fmt: skip
         try:
             last = run_dir / "checkpoints" / "last.pt" if run_dir is not None else None
             if cfg.resume and last is not None and last.exists():

@@ -279,6 +279,10 @@ class ComposedEnv(gym.Wrapper):
 
     ``decision_every=k``: one meta-policy decision holds its weights for ``k`` env steps while the skills act at every
     step (the meta-policy and its skills run at distinct rates); the rewards of the ``k`` steps are summed.
+
+    ``weight_margin=m``: the action space is [-m, 1 + m]^K and the weights are clipped to [0, 1], so that a policy
+    whose samples are bounded (a Beta's, mapped affinely onto the space) can still choose exactly 0 or 1, as a
+    switching rule does. ``m = 0`` is the paper's meta-policy.
     """
 
     def __init__(
@@ -288,8 +292,11 @@ class ComposedEnv(gym.Wrapper):
         mode: BlendMode = "sum",
         decision_every: int = 1,
         diagnostics: bool = False,
+        weight_margin: float = 0.0,
     ) -> None:
         super().__init__(env)
+        if not (np.isfinite(weight_margin) and weight_margin >= 0.0):
+            raise ConfigError(f"weight_margin must be >= 0 and finite, got {weight_margin}")
         self.diagnostics = bool(diagnostics)
         space = env.action_space
         if not isinstance(space, gym.spaces.Box) or len(space.shape) != 1:
@@ -300,7 +307,8 @@ class ComposedEnv(gym.Wrapper):
         self.composition = Composition(library, action_filter, decision_every)
         self.library, self.action_filter, self.decision_every = library, action_filter, self.composition.decision_every
         self.action_dim = int(space.shape[0])
-        self.action_space = gym.spaces.Box(0.0, 1.0, (len(library),), np.float32)
+        self.weight_margin = float(weight_margin)
+        self.action_space = gym.spaces.Box(-self.weight_margin, 1.0 + self.weight_margin, (len(library),), np.float32)
 
     @property
     def skill_names(self) -> tuple[str, ...]:

@@ -34,6 +34,7 @@ class RunConfig:
     beta_init_bias: float = 0.0
     action_filter: str = "sum"
     decision_every: int = 1
+    weight_margin: float = 0.0  # HRTC's weight samples span [-m, 1 + m], clipped to [0, 1] (ComposedEnv)
     seed: int = 1
     steps: int = 100_000
     num_envs: int = 2
@@ -67,6 +68,8 @@ class RunConfig:
             raise UnknownNameError("learner", self.learner, LEARNERS)
         if self.action_filter not in BLEND_MODES:
             raise UnknownNameError("action filter mode", self.action_filter, BLEND_MODES)
+        if not (isinstance(self.weight_margin, (int, float)) and 0.0 <= self.weight_margin < 10.0):
+            raise ConfigError(f"algo.weight_margin must be a number in [0, 10), got {self.weight_margin!r}")
         if self.vector not in ("async", "sync"):
             raise UnknownNameError("vector mode", self.vector, ("async", "sync"))
         if not isinstance(self.seed, int) or isinstance(self.seed, bool) or self.seed < 0:
@@ -141,6 +144,7 @@ class RunConfig:
             algo=str(algo.get("name")),
             action_filter=str(algo.get("action_filter", "sum")),
             decision_every=algo.get("decision_every", 1),
+            weight_margin=algo.get("weight_margin", 0.0),
             dist=str(dist.get("name")),
             beta_init_bias=float(dist.get("init_bias", 0.0)),
             learner=learner,

@@ -19,23 +19,24 @@ from hrtc.vector import RestartingVectorEnv
 
 def make_env(task: str, algo: str, skills: Mapping[str, Any], action_filter: str = "sum",
              env_kwargs: Mapping[str, Any] | None = None, decision_every: int = 1,
-             diagnostics: bool = True) -> gym.Env:  # fmt: skip
+             diagnostics: bool = True, weight_margin: float = 0.0) -> gym.Env:  # fmt: skip
     """The environment the policy acts in: the task itself (``ppo``) or the task composed with its skills (``hrtc``).
-    ``diagnostics``: the composed env's timings and fault counters in ``info`` (see :class:`ComposedEnv`)."""
+    ``diagnostics``: the composed env's timings and fault counters in ``info``; ``weight_margin``: the span of its
+    weights beyond [0, 1] (see :class:`ComposedEnv`)."""
     import envs  # the task registry (its package imports the shipped tasks so that they register)
 
     env = envs.make(task, **dict(env_kwargs or {}))
     if algo == "hrtc":
-        env = ComposedEnv(env, build_library(skills), action_filter, decision_every, diagnostics)  # type: ignore[arg-type]
+        library = build_library(skills)
+        env = ComposedEnv(env, library, action_filter, decision_every, diagnostics, weight_margin)  # type: ignore[arg-type]
     return env
 
 
 def env_factory(cfg: Any) -> Callable[[], gym.Env]:
     """A picklable thunk building the env of run config ``cfg`` (a :class:`~hrtc.config.RunConfig`), so that
     vector-environment workers build their own env and skills."""
-    return functools.partial(
-        make_env, cfg.task, cfg.algo, cfg.skills, cfg.action_filter, cfg.env_kwargs, cfg.decision_every
-    )
+    return functools.partial(make_env, cfg.task, cfg.algo, cfg.skills, cfg.action_filter, cfg.env_kwargs,
+                             cfg.decision_every, weight_margin=cfg.weight_margin)  # fmt: skip
 
 
 def vector_env(make: Callable[[], gym.Env], num_envs: int, mode: str = "async",

@@ -201,12 +201,12 @@ class Trainer:
     def state_dict(self) -> dict[str, Any]:
         cfg, space = self.cfg, self.eval_env.action_space
         # Enough to rebuild this policy as a skill of another task (skills.learned): plain containers only.
-        meta = {"task": cfg.task, "algo": cfg.algo, "dist": cfg.dist, "learner": cfg.learner,
+        meta = {"task": cfg.task, "algo": cfg.algo, "dist": cfg.dist, "learner": cfg.learner, "hidden": [*cfg.hidden],
                 "skills": list(self.skill_names), "obs_dim": self.policy.obs_dim, "out_dim": self.policy.out_dim,
-                "hidden": list(cfg.hidden), "action_filter": cfg.action_filter, "skills_cfg": plain(cfg.skills),
+                "activation": cfg.activation, "action_filter": cfg.action_filter, "skills_cfg": plain(cfg.skills),
                 "env_kwargs": plain(cfg.env_kwargs), "decision_every": self.steps_per_decision,
                 "action_low": space.low.tolist(), "action_high": space.high.tolist(),
-                "encoder": plain(cfg.encoder), "activation": cfg.activation}  # fmt: skip
+                "encoder": plain(cfg.encoder), "weight_margin": cfg.weight_margin}  # fmt: skip
         return {
             "policy": self.policy.state_dict(),
             "optimizer": self.learner.state_dict(),  # the learner's whole training state (optimisers, buffers...)

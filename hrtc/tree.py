@@ -59,6 +59,9 @@ def env_tree(env: Any, name: str = "meta") -> TreeNode:
         composed = composed.env
     every = composed.decision_every
     label = f"meta-policy, decides every {every} env steps" if every > 1 else "meta-policy, decides every env step"
+    if composed.weight_margin > 0:
+        m = composed.weight_margin
+        label += f", weights sampled in [{-m:g}, {1 + m:g}] and clipped to [0, 1]"
     return skill_tree(composed.library, name, label)
 
 

@@ -84,7 +84,8 @@ def prepare(opts: dict) -> Setup:
     env_kwargs = {**base, **opts["env_kwargs"]}
     try:
         env = build_env(task, meta["algo"], meta["skills_cfg"], meta["action_filter"], env_kwargs,
-                        int(meta["decision_every"]), eval_seeds(opts["seed"], 1)[0])  # fmt: skip
+                        int(meta["decision_every"]), eval_seeds(opts["seed"], 1)[0],
+                        weight_margin=float(meta.get("weight_margin", 0.0)))  # fmt: skip
     except HRTCError as error:
         raise HRTCError(f"cannot evaluate {path} on task {task!r}: {error}") from None
     try:

@@ -70,6 +70,7 @@ class PolicySkill:
         if env_kwargs is None:
             env_kwargs = self.meta.get("env_kwargs", {}) if self.task == self.meta["task"] else {}
         self.decision_every = int(self.meta.get("decision_every", 1)) if self.algo == "hrtc" else 1
+        self.weight_margin = float(self.meta.get("weight_margin", 0.0))
         self.library: SkillLibrary | None = None
         self.composition: Composition | None = None
 
@@ -133,6 +134,11 @@ class PolicySkill:
             obs = self.normalizer(obs)
         return self.policy.distribution(torch.as_tensor(obs)).mode().numpy()[0].astype(np.float64)
 
+    def _weights(self, observation: np.ndarray) -> np.ndarray:
+        """The node's skill weights for one observation: its mode on the span it was trained on, [-m, 1 + m] (the
+        composition clips them to [0, 1])."""
+        return to_action(self._mode(observation), -self.weight_margin, 1.0 + self.weight_margin, self.dist)
+
     def act(self, state: np.ndarray) -> SkillOutput:
         """Propose an action (action_dim,) for ``state``, the concatenation of ``state_keys``."""
         state = np.asarray(state, dtype=np.float64).ravel()
@@ -145,7 +151,7 @@ class PolicySkill:
         if self.composition is None:
             return SkillOutput(to_action(self._mode(observation), self.low, self.high, self.dist), {})
         # The node's own rate: the composition holds its weights between decisions.
-        action, _, infos = self.composition.act(lambda: named, lambda: self._mode(observation))
+        action, _, infos = self.composition.act(lambda: named, lambda: self._weights(observation))
         info: dict[str, float] = {}
         for name, weight, child in zip(self.composition.names, self.composition.weights, infos, strict=True):
             info[f"weight/{name}"] = float(weight)

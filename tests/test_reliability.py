@@ -192,6 +192,7 @@ BAD_INPUTS = [
     (["ppo.num_minibatches=100000"], "exceeds the rollout size"),
     (["algo.action_filter=max"], "unknown action filter mode 'max'"),
     (["algo.decision_every=0"], "algo.decision_every must be a positive integer"),
+    (["algo.weight_margin=-0.5"], "algo.weight_margin must be a number in [0, 10)"),
     (["vector=threads"], "unknown vector mode 'threads'"),
     (["hidden=[]"], "hidden must list positive layer widths"),
     (["logger.mode=disk"], "unknown logger mode 'disk'"),

@@ -61,7 +61,8 @@ def checkpoint_env(meta: Mapping[str, Any], decision_every: int | None = None) -
     from hrtc.environments import make_env
 
     every = int(meta["decision_every"]) if decision_every is None else decision_every
-    return make_env(meta["task"], meta["algo"], meta["skills_cfg"], meta["action_filter"], meta["env_kwargs"], every)
+    return make_env(meta["task"], meta["algo"], meta["skills_cfg"], meta["action_filter"], meta["env_kwargs"], every,
+                    weight_margin=float(meta.get("weight_margin", 0.0)))  # fmt: skip
 
 
 def checkpoint_returns(path: str | Path, seeds: Sequence[int]) -> np.ndarray:

@@ -405,11 +405,13 @@ def sb3_evaluate(model: Any, env: gym.Env, seeds: list[int]) -> np.ndarray:
     return run_episodes(env, decide, seeds)
 
 
-def sb3_train(spec: RunSpec, task: Mapping[str, Any] | None = None, decision_every: int = 1) -> dict[str, Any]:
+def sb3_train(spec: RunSpec, task: Mapping[str, Any] | None = None, decision_every: int = 1,
+              weight_margin: float = 0.0) -> dict[str, Any]:  # fmt: skip
     """Train stable-baselines3 algorithm ``spec.algo`` on ``spec.task`` (``task``: its config block, for the
-    env_kwargs and, for a composed algorithm, the skills acting every ``decision_every`` env steps); returns its
-    evaluation curve (CURVE_KEYS), the final evaluation's returns (and the best evaluated model's, kept as
-    ``best.zip``, with ``spec.final_best``) and its training env steps/s.
+    env_kwargs and, for a composed algorithm, the skills acting every ``decision_every`` env steps, the weights
+    spanning ``weight_margin`` beyond [0, 1]); returns its evaluation curve (CURVE_KEYS), the final evaluation's
+    returns (and the best evaluated model's, kept as ``best.zip``, with ``spec.final_best``) and its training env
+    steps/s.
 
     ``learn`` runs in chunks of ``eval_every`` env steps; on-policy algorithms finish their last rollout, so an
     evaluation may come a little after the chunk's end (SB3 PPO: the next multiple of 2,048)."""
@@ -428,7 +430,7 @@ def sb3_train(spec: RunSpec, task: Mapping[str, Any] | None = None, decision_eve
     def build() -> gym.Env:
         if composed:
             return make_env(spec.task, "hrtc", task["skills"], env_kwargs=task.get("env_kwargs"),
-                            decision_every=decision_every)  # fmt: skip
+                            decision_every=decision_every, weight_margin=weight_margin)  # fmt: skip
         return envs.make(spec.task, **dict(task.get("env_kwargs") or {}))
 
     env, eval_env = EpisodeCounter(build()), build()
@@ -479,14 +481,23 @@ def _sb3_run(spec: RunSpec) -> dict[str, Any]:
     from hrtc.cli import task_config
 
     task = task_config(spec.task)
-    return sb3_train(spec, task, decision_every(spec.task))
+    algo = composition_settings(spec.task)
+    return sb3_train(spec, task, int(algo["decision_every"]), float(algo.get("weight_margin", 0.0)))
+
+
+def composition_settings(task: str) -> dict[str, Any]:
+    """The composition's settings (the ``algo`` block: decision rate, weight margin, action filter) of
+    ``task=<task>`` as train.py composes it."""
+    from omegaconf import OmegaConf
+
+    from hrtc.cli import compose
+
+    return dict(OmegaConf.to_container(compose([f"task={task}"]).algo, resolve=True))  # type: ignore[arg-type]
 
 
 def decision_every(task: str) -> int:
     """The meta-policy's decision rate (env steps per decision) of ``task=<task>`` as train.py composes it."""
-    from hrtc.cli import compose
-
-    return int(compose([f"task={task}"]).algo.decision_every)
+    return int(composition_settings(task)["decision_every"])
 
 
 def last_eval_step(run_dir: Path) -> int:

@@ -105,6 +105,29 @@ def test_composed_env_applies_the_blend_and_reports_it():
     assert set(info["skills"]) == {"push", "pull"}
 
 
+def test_a_weight_margin_widens_the_action_space_and_clips_the_weights_to_the_unit_interval():
+    slots = [
+        SkillSlot("push", StaticIntent([0.6]), KeysFilter(())),
+        SkillSlot("pull", StaticIntent([-0.2]), KeysFilter(())),
+    ]
+    env = ComposedEnv(make("cartpole_swingup"), SkillLibrary(slots), weight_margin=0.25)  # type: ignore[arg-type]
+    assert env.action_space == gym.spaces.Box(-0.25, 1.25, (2,), np.float32)
+    plain = _composed(*[SkillSlot(s.name, s.skill, s.state_filter) for s in slots])
+    env.reset(seed=4)
+    plain.reset(seed=4)
+    # Beyond the unit interval a weight acts as 0 or 1 exactly (the switch a rule makes); inside it, as without margin.
+    for wide, unit in (([1.25, -0.25], [1.0, 0.0]), ([1.1, 0.3], [1.0, 0.3]), ([0.5, -0.01], [0.5, 0.0])):
+        obs, reward, *_, info = env.step(np.array(wide))
+        obs_p, reward_p, *_, info_p = plain.step(np.array(unit))
+        np.testing.assert_array_equal(obs, obs_p)
+        assert reward == reward_p
+        np.testing.assert_array_equal(info["weights"], unit)
+        np.testing.assert_array_equal(info["action"], info_p["action"])
+    for bad in (-0.1, float("nan"), float("inf")):
+        with pytest.raises(ConfigError, match="weight_margin"):
+            ComposedEnv(make("cartpole_swingup"), SkillLibrary(slots), weight_margin=bad)  # type: ignore[arg-type]
+
+
 def test_one_hot_in_the_env_equals_running_that_skill_alone():
     slot = SkillSlot("push", StaticIntent([0.7]), KeysFilter(()))
     env = _composed(slot, SkillSlot("hold", StaticIntent([0.0]), KeysFilter(())))

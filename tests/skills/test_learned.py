@@ -106,6 +106,25 @@ def test_hrtc_checkpoint_blends_its_children_with_its_beta_mean_at_its_own_rate(
         assert "swingup/energy" in out.info  # children's diagnostics, prefixed by their names
 
 
+def test_an_hrtc_checkpoint_trained_with_a_weight_margin_acts_on_that_span(tmp_path, states):
+    from hrtc.benchmark.metrics import checkpoint_env
+
+    path = tiny_checkpoint(tmp_path, weight_margin=0.5, steps=100, eval_every=100, checkpoint_every=100)
+    meta = load_checkpoint(path)["meta"]
+    assert meta["weight_margin"] == 0.5
+    assert checkpoint_env(meta).action_space == gym.spaces.Box(-0.5, 1.5, (2,), np.float32)
+    skill = PolicySkill(path)
+    children = build_library(CHILDREN)
+    skill.reset(np.random.default_rng(0))
+    children.reset(np.random.default_rng(0))
+    state = states[12]
+    out = skill.act(np.concatenate([np.atleast_1d(state[k]) for k in skill.state_keys]))
+    weights = np.clip(-0.5 + 2.0 * beta_mean_by_hand(path, state["observation"]), 0.0, 1.0)
+    proposals, _ = children.propose(state, 0, 1)
+    np.testing.assert_allclose(out.action, np.clip(weights @ proposals, -1.0, 1.0), rtol=0, atol=1e-6)
+    assert [out.info["weight/swingup"], out.info["weight/push"]] == pytest.approx(weights, abs=1e-6)
+
+
 @pytest.mark.parametrize("which", ["ppo", "hrtc"])
 def test_learned_skills_pass_check_skill(which, ppo_ckpt, hrtc_ckpt, states):
     skill = PolicySkill(ppo_ckpt if which == "ppo" else hrtc_ckpt, task="cartpole_swingup")
