@@ -28,8 +28,9 @@ from hrtc.normalize import normalize_obs  # noqa: E402
 
 def diagnose(path: str, episodes: int) -> dict[str, float]:
     policy, normalizer, meta = load_policy(path)
+    margin = float(meta.get("weight_margin", 0.0))  # samples span [-m, 1 + m], the weights are clipped to [0, 1]
     env = make_env(meta["task"], "hrtc", meta["skills_cfg"], meta["action_filter"], meta["env_kwargs"],
-                   int(meta["decision_every"]))  # fmt: skip
+                   int(meta["decision_every"]), weight_margin=margin)  # fmt: skip
     seeds = eval_seeds(1, episodes)
     log: dict[str, list] = {"w": [], "conc": []}
 
@@ -43,10 +44,11 @@ def diagnose(path: str, episodes: int) -> dict[str, float]:
                     u = torch.where(d.alpha + d.beta > 2 + 1e-6, peak, d.mode()).numpy()[0]
                 else:
                     u = (d.sample() if rule == "sample" else d.mode()).numpy()[0]
+            weights = np.clip(-margin + (1 + 2 * margin) * u, 0.0, 1.0)
             if rule == "mean":
-                log["w"].append(u)
+                log["w"].append(weights)
                 log["conc"].append((d.alpha + d.beta).numpy()[0])
-            return Decision(nobs[0], u, u.astype(np.float32))
+            return Decision(nobs[0], u, weights.astype(np.float32))
 
         return decide
 
