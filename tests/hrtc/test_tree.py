@@ -77,6 +77,10 @@ def test_tree_paths_depth_first():
 def test_env_tree_labels_the_root_with_its_decision_rate(node_ckpt):
     env = ComposedEnv(envs.make("cartpole_swingup"), _two_level(node_ckpt), decision_every=5)
     assert format_tree(env_tree(env)).splitlines()[0] == "meta: meta-policy, decides every 5 env steps"
+    wide = ComposedEnv(envs.make("cartpole_swingup"), _two_level(node_ckpt), decision_every=5, weight_margin=0.25)
+    assert format_tree(env_tree(wide)).splitlines()[0] == (
+        "meta: meta-policy, decides every 5 env steps, weights sampled in [-0.25, 1.25] and clipped to [0, 1]"
+    )
     with pytest.raises(ConfigError, match="composes no skills"):
         env_tree(envs.make("cartpole_swingup"))
 
