@@ -20,17 +20,18 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[4]))
 
+from hrtc.benchmark.metrics import checkpoint_env  # noqa: E402
 from hrtc.checkpoint import load_policy  # noqa: E402
 from hrtc.environments import make_env  # noqa: E402
 from hrtc.episodes import Decision, eval_seeds, run_episodes  # noqa: E402
 from hrtc.normalize import normalize_obs  # noqa: E402
+from hrtc.policy import to_action  # noqa: E402
 
 
 def diagnose(path: str, episodes: int) -> dict[str, float]:
     policy, normalizer, meta = load_policy(path)
-    margin = float(meta.get("weight_margin", 0.0))  # samples span [-m, 1 + m], the weights are clipped to [0, 1]
-    env = make_env(meta["task"], "hrtc", meta["skills_cfg"], meta["action_filter"], meta["env_kwargs"],
-                   int(meta["decision_every"]), weight_margin=margin)  # fmt: skip
+    env = checkpoint_env(meta)  # its weight span too: samples on [-m, 1 + m], the weights clipped to [0, 1]
+    space = env.action_space
     seeds = eval_seeds(1, episodes)
     log: dict[str, list] = {"w": [], "conc": []}
 
@@ -44,11 +45,11 @@ def diagnose(path: str, episodes: int) -> dict[str, float]:
                     u = torch.where(d.alpha + d.beta > 2 + 1e-6, peak, d.mode()).numpy()[0]
                 else:
                     u = (d.sample() if rule == "sample" else d.mode()).numpy()[0]
-            weights = np.clip(-margin + (1 + 2 * margin) * u, 0.0, 1.0)
+            action = to_action(u, space.low, space.high, "beta")
             if rule == "mean":
-                log["w"].append(weights)
+                log["w"].append(np.clip(action, 0.0, 1.0))  # the weights the action filter applies
                 log["conc"].append((d.alpha + d.beta).numpy()[0])
-            return Decision(nobs[0], u, weights.astype(np.float32))
+            return Decision(nobs[0], u, action.astype(np.float32))
 
         return decide
 
