@@ -43,9 +43,11 @@ class SACConfig:
     log_every: int = 250  # decisions between rows of train.csv
     normalize_obs: bool = False  # a replay buffer holds old samples: no drifting normaliser by default
     n_step: int = 1  # decisions summed into each critic target before bootstrapping (1: the one-step target)
+    n_critics: int = 2  # critics Q_1..Q_N; each target takes the min of a random pair of them (REDQ's M = 2)
+    actor_q: str = "min"  # what the actor maximises: "min" over all N critics (SAC's) or their "mean" (REDQ's)
 
     def __post_init__(self) -> None:
-        for name in ("batch_size", "buffer_size", "log_every", "n_step"):
+        for name in ("batch_size", "buffer_size", "log_every", "n_step", "n_critics"):
             value = getattr(self, name)
             if not isinstance(value, int) or isinstance(value, bool) or value < 1:
                 raise ConfigError(f"sac.{name} must be a positive integer, got {value!r}")
@@ -61,6 +63,10 @@ class SACConfig:
             raise ConfigError(f"sac.updates_per_decision must be > 0, got {self.updates_per_decision}")
         if not self.init_temperature > 0:
             raise ConfigError(f"sac.init_temperature must be > 0, got {self.init_temperature}")
+        if self.n_critics < 2:
+            raise ConfigError(f"sac.n_critics must be at least 2 (a target takes the min of a pair), got {self.n_critics}")
+        if self.actor_q not in ("min", "mean"):
+            raise ConfigError(f"sac.actor_q must be 'min' or 'mean', got {self.actor_q!r}")
         if not self.q_hidden or any(int(h) < 1 for h in self.q_hidden):
             raise ConfigError(f"sac.q_hidden must list positive layer widths, got {list(self.q_hidden)}")
 
@@ -219,22 +225,26 @@ def rsample_with_logp(distribution: object) -> tuple[torch.Tensor, torch.Tensor]
 
 
 def sac_losses(policy: nn.Module, critics: TwinQ, target_critics: TwinQ, batch: ReplayBatch,
-               temperature: float | torch.Tensor) -> dict[str, torch.Tensor]:  # fmt: skip
+               temperature: float | torch.Tensor, target_pair: tuple[int, int] = (0, 1),
+               actor_q: str = "min") -> dict[str, torch.Tensor]:  # fmt: skip
     """The critics', actor's and master critic's losses on one minibatch, with the actor's log-probabilities.
 
-    ``policy`` is an :class:`~hrtc.policy.ActorCritic` (``distribution(obs)``, ``value(obs)``). The critics fit the
-    soft target on the stored weights; the actor maximises ``min_i Q_i(s, w) - temperature log pi(w | s)`` on fresh
-    reparameterised weights; V(s) fits that soft value. The caller must keep the actor loss's gradient out of the
-    critics (see :meth:`SACLearner._gradient_step`)."""
+    ``policy`` is an :class:`~hrtc.policy.ActorCritic` (``distribution(obs)``, ``value(obs)``). Every critic fits the
+    soft target on the stored weights, built from the target critics ``target_pair`` (the min of the two); the actor
+    maximises ``Q(s, w) - temperature log pi(w | s)`` on fresh reparameterised weights, with Q the ``min`` or the
+    ``mean`` over all critics (``actor_q``); V(s) fits that soft value. The caller must keep the actor loss's gradient
+    out of the critics (see :meth:`SACLearner._gradient_step`)."""
     with torch.no_grad():
         next_w, next_logp = rsample_with_logp(policy.distribution(batch.next_obs))
         next_q = target_critics(batch.next_obs, next_w)
+        i, j = target_pair
         target = soft_q_target(
-            batch.rewards, batch.terminated, next_q[0], next_q[1], next_logp, temperature, batch.discount
+            batch.rewards, batch.terminated, next_q[i], next_q[j], next_logp, temperature, batch.discount
         )
     q_loss = ((critics(batch.obs, batch.samples) - target) ** 2).mean(-1).sum()
     w, logp = rsample_with_logp(policy.distribution(batch.obs))
-    q_pi = critics(batch.obs, w).min(0).values
+    q_all = critics(batch.obs, w)
+    q_pi = q_all.min(0).values if actor_q == "min" else q_all.mean(0)
     actor_loss = (temperature * logp - q_pi).mean()
     value_loss = F.mse_loss(policy.value(batch.obs), (q_pi - temperature * logp).detach())
     return {"q": q_loss, "actor": actor_loss, "value": value_loss, "logp": logp, "q_pi": q_pi, "target": target}
@@ -269,7 +279,7 @@ class SACLearner:
 
         self.policy, self.cfg, self.gamma, self.generator = policy, cfg, gamma, generator
         obs_dim, k = int(policy.obs_dim), int(policy.out_dim)
-        self.critics = TwinQ(obs_dim, k, cfg.q_hidden)
+        self.critics = TwinQ(obs_dim, k, cfg.q_hidden, n=cfg.n_critics)
         self.target_critics = copy.deepcopy(self.critics).requires_grad_(False)
         self.q_optimizer = torch.optim.Adam(self.critics.parameters(), lr=cfg.learning_rate)
         self.actor_optimizer = torch.optim.Adam(policy.parameters(), lr=cfg.learning_rate)
@@ -320,7 +330,10 @@ class SACLearner:
     def _gradient_step(self) -> None:
         batch = self.buffer.sample(self.cfg.batch_size, self.generator)
         temperature = self.log_temperature.exp().detach()
-        losses = sac_losses(self.policy, self.critics, self.target_critics, batch, temperature)
+        pair = (0, 1)
+        if self.cfg.n_critics > 2:  # REDQ: a fresh random pair per gradient step (two critics draw nothing)
+            pair = tuple(torch.randperm(self.cfg.n_critics, generator=self.generator)[:2].tolist())
+        losses = sac_losses(self.policy, self.critics, self.target_critics, batch, temperature, pair, self.cfg.actor_q)
         # Each backward pass accumulates into its own parameters only: the actor's loss never moves the critics.
         self.actor_optimizer.zero_grad()
         (losses["actor"] + losses["value"]).backward(inputs=list(self.policy.parameters()))

@@ -114,6 +114,40 @@ def test_the_actor_loss_never_moves_the_critics():
     assert all(p.grad is not None for p in policy.actor_head.parameters())
 
 
+def test_an_ensemble_target_takes_the_min_of_its_pair_and_the_actor_the_min_or_the_mean():
+    """With N critics, the critics' target is the soft target of the chosen pair of target critics only, and the
+    actor's Q is the min (SAC's) or the mean (REDQ's) over all N (checked against each critic evaluated by hand)."""
+    torch.manual_seed(0)
+    policy, critics, target = ActorCritic(4, 3, "beta", (16,)), TwinQ(4, 3, (16,), n=4), TwinQ(4, 3, (16,), n=4)
+    buffer = ReplayBuffer(100, 4, 3)
+    rng = np.random.default_rng(0)
+    buffer.add(rng.normal(size=(50, 4)), rng.random((50, 3)), rng.random(50), rng.normal(size=(50, 4)), np.zeros(50),
+               np.full(50, 0.9))  # fmt: skip
+    batch = buffer.sample(32, torch.Generator().manual_seed(0))
+    out = {}
+    for pair, actor_q in (((2, 3), "min"), ((0, 2), "mean")):
+        torch.manual_seed(1)  # the same rsampled weights in both calls and below
+        out[actor_q] = sac_losses(policy, critics, target, batch, 0.1, target_pair=pair, actor_q=actor_q)
+        torch.manual_seed(1)
+        with torch.no_grad():
+            next_w = policy.distribution(batch.next_obs).rsample()
+            next_logp = policy.distribution(batch.next_obs).log_prob(next_w)
+            next_q = torch.stack([target.critics[i](torch.cat([batch.next_obs, next_w], -1)).squeeze(-1) for i in pair])
+        expected = batch.rewards + batch.discount * (next_q.min(0).values - 0.1 * next_logp)
+        torch.testing.assert_close(out[actor_q]["target"], expected)
+    assert not torch.allclose(out["min"]["target"], out["mean"]["target"])
+    assert (out["min"]["q_pi"] < out["mean"]["q_pi"]).all()  # the same rsampled weights: the min of 4 lies below
+
+
+@pytest.mark.parametrize(("key", "value", "message"), [("n_critics", 1, "sac.n_critics must be at least 2"),
+                                                       ("actor_q", "max", "sac.actor_q must be 'min' or 'mean'")])
+def test_bad_ensemble_settings_are_one_config_error(key, value, message):
+    from hrtc.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=message):
+        SACConfig(**{key: value})
+
+
 # --------------------------------------------------------------------------------------------------- replay buffer
 def test_n_step_transitions_sum_discounted_rewards_and_stop_at_an_episode_end():
     """Two envs, n = 3, gamma 0.5: env 0 runs on (its 3rd decision completes its 1st transition); env 1 ends its
