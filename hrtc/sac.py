@@ -64,7 +64,7 @@ class SACConfig:
         if not self.init_temperature > 0:
             raise ConfigError(f"sac.init_temperature must be > 0, got {self.init_temperature}")
         if self.n_critics < 2:
-            raise ConfigError(f"sac.n_critics must be at least 2 (a target takes the min of a pair), got {self.n_critics}")
+            raise ConfigError(f"sac.n_critics must be at least 2 (a target is the min of a pair), got {self.n_critics}")
         if self.actor_q not in ("min", "mean"):
             raise ConfigError(f"sac.actor_q must be 'min' or 'mean', got {self.actor_q!r}")
         if not self.q_hidden or any(int(h) < 1 for h in self.q_hidden):

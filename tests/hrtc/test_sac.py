@@ -139,8 +139,10 @@ def test_an_ensemble_target_takes_the_min_of_its_pair_and_the_actor_the_min_or_t
     assert (out["min"]["q_pi"] < out["mean"]["q_pi"]).all()  # the same rsampled weights: the min of 4 lies below
 
 
-@pytest.mark.parametrize(("key", "value", "message"), [("n_critics", 1, "sac.n_critics must be at least 2"),
-                                                       ("actor_q", "max", "sac.actor_q must be 'min' or 'mean'")])
+@pytest.mark.parametrize(
+    ("key", "value", "message"),
+    [("n_critics", 1, "sac.n_critics must be at least 2"), ("actor_q", "max", "sac.actor_q must be 'min' or 'mean'")],
+)
 def test_bad_ensemble_settings_are_one_config_error(key, value, message):
     from hrtc.errors import ConfigError
 

@@ -2,11 +2,21 @@
 
     python benchmarks/results/cartpole_swingup/learner_diagnosis/diagnose.py CHECKPOINT [CHECKPOINT...] [--episodes 10]
     python benchmarks/results/cartpole_swingup/learner_diagnosis/diagnose.py --soft-rules [--episodes 10]
+    python benchmarks/results/cartpole_swingup/learner_diagnosis/diagnose.py --by-angle CHECKPOINT [--episodes 3]
+    python benchmarks/results/cartpole_swingup/learner_diagnosis/diagnose.py --critic-gradients SAC_LAST_CHECKPOINT
+    python benchmarks/results/cartpole_swingup/learner_diagnosis/diagnose.py --recording RUN_DIR --steps 20000 22500
 
 For each checkpoint, on the evaluation seeds of its seed: the return with the Beta means (what is evaluated) and with
 sampled weights (what PPO optimises), the share of decisions whose weights are "pinned" (the dominant weight >= 0.9 and
 every other <= 0.1: what the switching rule needs, see soft switches in table.md), and the median concentration
 alpha + beta. ``--soft-rules`` scores cartpole_swingup's switching rule with softer weights than 0 and 1.
+``--by-angle``: the applied weights (Beta means, clipped) averaged over the decisions in each band of |pole angle|
+(from the observation's cos and sin), beside the switching rule's (swingup alone above 0.5 rad, balance alone below).
+``--recording``: the same bands from a run's Rerun recording alone, for its evaluations at ``--steps``.
+``--critic-gradients``: a SAC run's ``last.pt`` (it holds the critics and the replay buffer): the median |dQ/dw_k| of
+the critics' min at the policy's mean weights, per unit of applied weight, on the buffer's last 5,000 states, near
+upright and away from it. ``hold`` proposes zero force, so with the sum filter its weight changes nothing: its
+gradient measures the critics' gradient noise.
 """
 
 from __future__ import annotations
@@ -60,11 +70,97 @@ def diagnose(path: str, episodes: int) -> dict[str, float]:
     w, conc = np.array(log["w"]), np.array(log["conc"])
     top = np.sort(w, axis=1)
     pinned = (top[:, -1] >= 0.9) & (top[:, :-1] <= 0.1).all(axis=1)
-    return {"mean weights return": mean_returns.mean(), "sampled weights return": sampled_returns.mean(),
-            "Beta-mode weights return": mode_returns.mean(),
-            "pinned share": pinned.mean(), "dominant weight (median)": float(np.median(top[:, -1])),
-            "runner-up weight (median)": float(np.median(top[:, -2])),
-            "alpha+beta (median)": float(np.median(conc)), "alpha+beta (90th pct)": float(np.percentile(conc, 90))}
+    return {
+        "mean weights return": mean_returns.mean(),
+        "sampled weights return": sampled_returns.mean(),
+        "Beta-mode weights return": mode_returns.mean(),
+        "pinned share": pinned.mean(),
+        "dominant weight (median)": float(np.median(top[:, -1])),
+        "runner-up weight (median)": float(np.median(top[:, -2])),
+        "alpha+beta (median)": float(np.median(conc)),
+        "alpha+beta (90th pct)": float(np.percentile(conc, 90)),
+    }
+
+
+ANGLE_BANDS = (0.0, 0.2, 0.5, 1.0, 2.0, 3.2)
+
+
+def margin_of(meta: dict) -> float:
+    """The checkpoint's weight span margin (checkpoints of the option's prototype record only the action bounds)."""
+    return float(meta.get("weight_margin", -min(meta.get("action_low") or [0.0])))
+
+
+def by_angle(path: str, episodes: int) -> None:
+    policy, normalizer, meta = load_policy(path)
+    env = checkpoint_env({**meta, "weight_margin": margin_of(meta)})
+    space = env.action_space
+    rows = []
+
+    def decide(obs: np.ndarray) -> Decision:
+        nobs = normalize_obs(normalizer, obs[None])
+        with torch.no_grad():
+            u = policy.distribution(torch.as_tensor(nobs)).mode().numpy()[0]  # the Beta mean
+        action = to_action(u, space.low, space.high, "beta")
+        rows.append((abs(np.arctan2(obs[2], obs[1])), *np.clip(action, 0.0, 1.0)))  # obs: x, cos, sin, x', angle'
+        return Decision(nobs[0], u, action.astype(np.float32))
+
+    returns = run_episodes(env, decide, eval_seeds(1, episodes))
+    table = np.array(rows)
+    names = " ".join(f"{name:>8s}" for name in meta.get("skills", [])) or "weights"
+    print(f"{path}: returns {np.round(returns, 1).tolist()}\n  |angle| (rad)  decisions  {names}")
+    for lo, hi in zip(ANGLE_BANDS[:-1], ANGLE_BANDS[1:], strict=True):
+        band = table[(table[:, 0] >= lo) & (table[:, 0] < hi)]
+        if len(band):
+            means = " ".join(f"{v:8.2f}" for v in band[:, 1:].mean(0))
+            print(f"  {lo:.1f}-{hi:.1f}        {len(band):5d}      {means}")
+
+
+def recording_by_angle(run_dir: str, steps: list[int]) -> None:
+    from hrtc.review import load
+
+    review = load(run_dir)
+    print(f"{run_dir}: {' '.join(review.skill_names)} (key state {review.key_state})")
+    for step in steps:
+        episodes = review.episodes[review.episodes.global_step == step]
+        decisions = review.steps[review.steps.episode.isin(episodes.episode)]
+        weights, angle = np.stack(decisions.weights.values), np.abs(decisions.key.values)
+        print(f"  {step} env steps: returns {episodes['return'].round(0).tolist()}")
+        for lo, hi in zip(ANGLE_BANDS[:-1], ANGLE_BANDS[1:], strict=True):
+            band = (angle >= lo) & (angle < hi)
+            if band.any():
+                print(
+                    f"    |angle| {lo:.1f}-{hi:.1f}: {int(band.sum()):4d} decisions, weights "
+                    + " ".join(f"{v:.2f}" for v in weights[band].mean(0))
+                )
+
+
+def critic_gradients(path: str) -> None:
+    from hrtc.checkpoint import load_checkpoint
+    from hrtc.sac import TwinQ
+
+    policy, _, meta = load_policy(path)
+    state = load_checkpoint(path)["optimizer"]  # a SAC run saves its learner's state under this key
+    obs = state["buffer"]["obs"][-5000:]
+    k, m = state["buffer"]["samples"].shape[1], margin_of(meta)
+    hidden = [v.shape[0] for name, v in state["critics"].items() if name.startswith("critics.0.") and
+              name.endswith(".bias")][:-1]  # fmt: skip
+    critics = TwinQ(obs.shape[1], k, hidden)
+    critics.load_state_dict(state["critics"])
+    with torch.no_grad():
+        u = policy.distribution(obs).mode().clone()  # the Beta means, in (0, 1)
+    u.requires_grad_(True)
+    (grad,) = torch.autograd.grad(critics(obs, u).min(0).values.sum(), u)
+    per_weight = (grad / (1 + 2 * m)).abs()  # dQ per unit of the weight the action filter applies
+    applied = (-m + (1 + 2 * m) * u.detach()).clamp(0.0, 1.0)
+    angle = torch.atan2(obs[:, 2], obs[:, 1]).abs()
+    print(f"{path}: skills {meta.get('skills')}")
+    for name, mask in (("|angle| < 0.5", angle < 0.5), ("|angle| >= 0.5", angle >= 0.5)):
+        print(
+            f"  {name} ({int(mask.sum())} states): median |dQ/dw| "
+            + " ".join(f"{v:.2f}" for v in per_weight[mask].median(0).values.tolist())
+            + " | share of weights inside (0, 1): "
+            + " ".join(f"{v:.2f}" for v in ((applied > 0) & (applied < 1))[mask].float().mean(0).tolist())
+        )
 
 
 def soft_rules(episodes: int, action_filter: str = "sum") -> None:
@@ -90,10 +186,19 @@ if __name__ == "__main__":
     parser.add_argument("checkpoints", nargs="*")
     parser.add_argument("--episodes", type=int, default=10)
     parser.add_argument("--soft-rules", action="store_true")
+    parser.add_argument("--by-angle", action="store_true")
+    parser.add_argument("--critic-gradients", action="store_true")
+    parser.add_argument("--recording", help="a run directory: weights by |angle| band from its recording")
+    parser.add_argument("--steps", type=int, nargs="*", default=[], help="the evaluations (env steps) to read")
     parser.add_argument("--action-filter", default="sum", choices=("sum", "convex"))
     args = parser.parse_args()
+    if args.recording:
+        recording_by_angle(args.recording, args.steps)
     if args.soft_rules:
         soft_rules(args.episodes, args.action_filter)
     for ckpt in args.checkpoints:
+        if args.by_angle or args.critic_gradients:
+            (by_angle(ckpt, args.episodes) if args.by_angle else critic_gradients(ckpt))
+            continue
         stats = diagnose(ckpt, args.episodes)
         print(ckpt, " | ".join(f"{k} {v:.3g}" for k, v in stats.items()))
