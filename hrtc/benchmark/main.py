@@ -48,7 +48,8 @@ DEFAULTS: dict[str, Any] = {
     "references": True,  # evaluate each skill alone, the untrained blend and the task's declared rules too
     "rules": {},  # more reference rules than the task declares (the same form as task.references)
     "reference_episodes": None,  # default: final_episodes (10 if 0)
-    "reference_seed": 1,  # the references' episodes: those of this run seed (final_seed_base's scheme)
+    "reference_seed": 1,  # the references' episodes: those of this run seed (final_seed_base's scheme), or "runs":
+    # those of every run seed, the episodes the final policies are measured on (where episodes differ a lot)
     "variants": {},  # name: {base: <algorithm>, task, overrides: [...], root_ppo, seeds, budget, export}
     "metric": "returns",  # a plug-in of hrtc.benchmark.metrics, or {name: <plug-in>, <its arguments>}
     "wall_minutes": None,  # stop each run's training after so many minutes (the runs side by side: cpus)
@@ -209,7 +210,7 @@ def check(args: dict[str, Any]) -> dict[str, Any]:
         "references": cli.boolean,
         "rules": cli.mapping,
         "reference_episodes": cli.optional(cli.integer(1)),
-        "reference_seed": cli.integer(0, 999),
+        "reference_seed": _reference_seed,
         "metric": metric,
         "wall_minutes": cli.optional(cli.number(0.01)),
         "thresholds": thresholds,
@@ -303,7 +304,7 @@ def main(argv: list[str]) -> int:
     out.mkdir(parents=True, exist_ok=True)
     if args["references"]:
         try:
-            meta["references"] = references(task, args, results_path)
+            meta["references"] = references(task, args, results_path, meta["seeds"])
         except HRTCError as error:
             fail(str(error))
     errors: dict[str, str] = {}
@@ -331,25 +332,42 @@ def main(argv: list[str]) -> int:
     return 1 if errors else 0
 
 
-def references(task: dict, args: dict[str, Any], results_path: Path) -> dict[str, Any]:
+def _reference_seed(name: str, value: Any) -> int | str:
+    if value == "runs" or (isinstance(value, int) and not isinstance(value, bool) and 0 <= value <= 999):
+        return value
+    raise ConfigError(f"{name} must be an integer in [0, 999] or 'runs' (every run seed's episodes), got {value!r}")
+
+
+def reference_episode_seeds(base: int | None, reference_seed: int | str, run_seeds: list[int],
+                            episodes: int) -> list[int]:  # fmt: skip
+    """The references' episode seeds: ``episodes`` of run seed ``reference_seed`` (the final policies' scheme,
+    :func:`~hrtc.benchmark.runs.episode_seeds`), or with ``"runs"`` those of every run seed, seed after seed."""
+    from hrtc.benchmark.runs import episode_seeds
+
+    per_seed = run_seeds if reference_seed == "runs" else [int(reference_seed)]
+    return [s for seed in per_seed for s in episode_seeds(base, seed, episodes)]
+
+
+def references(task: dict, args: dict[str, Any], results_path: Path, run_seeds: list[int]) -> dict[str, Any]:
     """Every reference rule over the task's skills (:mod:`hrtc.references`: each alone, the untrained blend, the
     task's declared rules and the benchmark's ``rules``) measured by the benchmark's metric on the episodes of run
-    seed ``reference_seed``; reused from ``results_path`` when it holds them all for as many episodes."""
+    seed ``reference_seed`` (``"runs"``: those of every seed in ``run_seeds``, one after the other); reused from
+    ``results_path`` when it holds them all for as many episodes."""
     from hrtc.benchmark.metrics import evaluate_references
-    from hrtc.benchmark.runs import decision_every, episode_seeds
+    from hrtc.benchmark.runs import decision_every
     from hrtc.environments import make_env
     from hrtc.references import reference_rules
 
     metric = dict(args["metric"])
     kind = metric.pop("name")
     episodes = int(args["reference_episodes"] or args["final_episodes"] or 10)
-    seeds = episode_seeds(args["final_seed_base"], int(args["reference_seed"]), episodes)
+    seeds = reference_episode_seeds(args["final_seed_base"], args["reference_seed"], run_seeds, episodes)
     env = make_env(task["name"], "hrtc", task["skills"], env_kwargs=task.get("env_kwargs"))
     rules = reference_rules(env.skill_names, {**(task.get("references") or {}), **args["rules"]})
     env.close()
     stored = json.loads(results_path.read_text()).get("references", {}) if results_path.exists() else {}
     size = (lambda v: v["summary"]["all"]["targets"]) if kind == "success" else len  # noqa: E731
-    wanted = int(metric.get("episodes", 1000)) if kind == "success" else episodes
+    wanted = int(metric.get("episodes", 1000)) if kind == "success" else len(seeds)
     if set(rules) <= set(stored) and all(size(stored[k]) == wanted for k in rules):
         return {k: stored[k] for k in rules}
     print(f"references: {len(rules)} rules x {wanted} episodes", file=sys.stderr)

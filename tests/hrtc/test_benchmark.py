@@ -224,6 +224,20 @@ def test_benchmark_in_a_process_pool_skips_finished_runs(tmp_path: Path) -> None
     assert sorted(again["runs"]) == ["sb3_a2c/seed1", "sb3_a2c/seed2"]
 
 
+def test_references_on_every_run_seed_use_the_final_policies_own_episodes() -> None:
+    """``reference_seed=runs``: the references' episodes are those the final policies of every run seed are measured
+    on (the run's evaluation seeds, or final_seed_base's scheme), seed after seed; an integer: that seed's only."""
+    from hrtc.benchmark.main import check, parse, reference_episode_seeds
+
+    assert reference_episode_seeds(None, "runs", [1, 2, 3], 4) == eval_seeds(1, 4) + eval_seeds(2, 4) + eval_seeds(3, 4)
+    assert reference_episode_seeds(None, 2, [1, 2, 3], 4) == eval_seeds(2, 4)
+    assert reference_episode_seeds(2_000_000, "runs", [1, 2], 2) == [2_001_000, 2_001_001, 2_002_000, 2_002_001]
+    assert len(set(reference_episode_seeds(None, "runs", [1, 2, 3, 4, 5], 10))) == 50  # no episode counted twice
+    assert check(parse(["benchmark=pendulum_swingup", "reference_seed=runs"]))["reference_seed"] == "runs"
+    with pytest.raises(SystemExit):
+        check(parse(["benchmark=pendulum_swingup", "reference_seed=all"]))
+
+
 def test_benchmark_rejects_bad_arguments_in_one_line(tmp_path: Path) -> None:
     proc = _bench(tmp_path, "algos=[hrtc_beta,sac]")
     assert proc.returncode == 2 and proc.stderr.strip() == (

@@ -27,7 +27,7 @@ if __name__ == "__main__":
     seeds = results["seeds"]
     rows: dict[str, list[float]] = {}
     for seed in seeds:  # a path that does not exist: nothing stored is reused
-        for name, returns in references(task, {**args, "reference_seed": seed}, HERE / "none.json").items():
+        for name, returns in references(task, {**args, "reference_seed": seed}, HERE / "none.json", [seed]).items():
             rows.setdefault(name, []).append(float(np.mean(returns)))
     for algo in results["algos"]:
         rows[algo] = [float(np.mean(results["runs"][f"{algo}/seed{s}"]["final_returns"])) for s in seeds]
