@@ -45,6 +45,7 @@ class SACConfig:
     n_step: int = 1  # decisions summed into each critic target before bootstrapping (1: the one-step target)
     n_critics: int = 2  # critics Q_1..Q_N; each target takes the min of a random pair of them (REDQ's M = 2)
     actor_q: str = "min"  # what the actor maximises: "min" over all N critics (SAC's) or their "mean" (REDQ's)
+    critic_grad_penalty: float = 0.0  # lambda: the critics' loss adds lambda * E ||d(sum_i Q_i) / dw||^2 (stored w)
 
     def __post_init__(self) -> None:
         for name in ("batch_size", "buffer_size", "log_every", "n_step", "n_critics"):
@@ -65,6 +66,8 @@ class SACConfig:
             raise ConfigError(f"sac.init_temperature must be > 0, got {self.init_temperature}")
         if self.n_critics < 2:
             raise ConfigError(f"sac.n_critics must be at least 2 (a target is the min of a pair), got {self.n_critics}")
+        if not (np.isfinite(self.critic_grad_penalty) and self.critic_grad_penalty >= 0.0):
+            raise ConfigError(f"sac.critic_grad_penalty must be >= 0 and finite, got {self.critic_grad_penalty}")
         if self.actor_q not in ("min", "mean"):
             raise ConfigError(f"sac.actor_q must be 'min' or 'mean', got {self.actor_q!r}")
         if not self.q_hidden or any(int(h) < 1 for h in self.q_hidden):
@@ -225,15 +228,17 @@ def rsample_with_logp(distribution: object) -> tuple[torch.Tensor, torch.Tensor]
 
 
 def sac_losses(policy: nn.Module, critics: TwinQ, target_critics: TwinQ, batch: ReplayBatch,
-               temperature: float | torch.Tensor, target_pair: tuple[int, int] = (0, 1),
-               actor_q: str = "min") -> dict[str, torch.Tensor]:  # fmt: skip
+               temperature: float | torch.Tensor, target_pair: tuple[int, int] = (0, 1), actor_q: str = "min",
+               grad_penalty: float = 0.0) -> dict[str, torch.Tensor]:  # fmt: skip
     """The critics', actor's and master critic's losses on one minibatch, with the actor's log-probabilities.
 
     ``policy`` is an :class:`~hrtc.policy.ActorCritic` (``distribution(obs)``, ``value(obs)``). Every critic fits the
     soft target on the stored weights, built from the target critics ``target_pair`` (the min of the two); the actor
     maximises ``Q(s, w) - temperature log pi(w | s)`` on fresh reparameterised weights, with Q the ``min`` or the
-    ``mean`` over all critics (``actor_q``); V(s) fits that soft value. The caller must keep the actor loss's gradient
-    out of the critics (see :meth:`SACLearner._gradient_step`)."""
+    ``mean`` over all critics (``actor_q``); V(s) fits that soft value. ``grad_penalty`` > 0 adds
+    ``grad_penalty * E ||d(sum_i Q_i(s, w)) / dw||^2`` at the stored weights (the Beta samples) to the critics' loss:
+    the critics then keep a slope in a weight only where the returns ask for it. The caller must keep the actor loss's
+    gradient out of the critics (see :meth:`SACLearner._gradient_step`)."""
     with torch.no_grad():
         next_w, next_logp = rsample_with_logp(policy.distribution(batch.next_obs))
         next_q = target_critics(batch.next_obs, next_w)
@@ -241,7 +246,12 @@ def sac_losses(policy: nn.Module, critics: TwinQ, target_critics: TwinQ, batch: 
         target = soft_q_target(
             batch.rewards, batch.terminated, next_q[i], next_q[j], next_logp, temperature, batch.discount
         )
-    q_loss = ((critics(batch.obs, batch.samples) - target) ** 2).mean(-1).sum()
+    samples = batch.samples.clone().requires_grad_(True) if grad_penalty > 0 else batch.samples
+    q_stored = critics(batch.obs, samples)
+    q_loss = ((q_stored - target) ** 2).mean(-1).sum()
+    if grad_penalty > 0:
+        (slope,) = torch.autograd.grad(q_stored.sum(), samples, create_graph=True)  # (B, K): d(sum_i Q_i) / dw
+        q_loss = q_loss + grad_penalty * (slope**2).sum(-1).mean()
     w, logp = rsample_with_logp(policy.distribution(batch.obs))
     q_all = critics(batch.obs, w)
     q_pi = q_all.min(0).values if actor_q == "min" else q_all.mean(0)
@@ -333,7 +343,8 @@ class SACLearner:
         pair = (0, 1)
         if self.cfg.n_critics > 2:  # REDQ: a fresh random pair per gradient step (two critics draw nothing)
             pair = tuple(torch.randperm(self.cfg.n_critics, generator=self.generator)[:2].tolist())
-        losses = sac_losses(self.policy, self.critics, self.target_critics, batch, temperature, pair, self.cfg.actor_q)
+        losses = sac_losses(self.policy, self.critics, self.target_critics, batch, temperature, pair, self.cfg.actor_q,
+                            self.cfg.critic_grad_penalty)  # fmt: skip
         # Each backward pass accumulates into its own parameters only: the actor's loss never moves the critics.
         self.actor_optimizer.zero_grad()
         (losses["actor"] + losses["value"]).backward(inputs=list(self.policy.parameters()))

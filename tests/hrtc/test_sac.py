@@ -139,6 +139,38 @@ def test_an_ensemble_target_takes_the_min_of_its_pair_and_the_actor_the_min_or_t
     assert (out["min"]["q_pi"] < out["mean"]["q_pi"]).all()  # the same rsampled weights: the min of 4 lies below
 
 
+def _terminal_batch(obs: np.ndarray, samples: np.ndarray, rewards: np.ndarray):
+    """Transitions that all end an episode: the critics' target is the reward itself (a plain regression)."""
+    n = len(rewards)
+    buffer = ReplayBuffer(n, obs.shape[1], samples.shape[1])
+    buffer.add(obs, samples, rewards, obs, np.ones(n), np.full(n, 0.9))
+    state = buffer.state_dict()
+    from hrtc.sac import ReplayBatch
+
+    return ReplayBatch(*(state[k] for k in ("obs", "samples", "rewards", "next_obs", "terminated", "discount")))
+
+
+def test_the_critics_gradient_penalty_is_the_squared_slope_in_the_weights():
+    """The critics' loss with ``grad_penalty`` = lambda is the plain loss plus lambda * E ||d(Q_1 + Q_2) / dw||^2,
+    the slope checked against central finite differences of the critics in each weight."""
+    torch.manual_seed(0)
+    policy, critics, target = ActorCritic(3, 2, "beta", (8,)), TwinQ(3, 2, (16,)), TwinQ(3, 2, (16,))
+    rng = np.random.default_rng(0)
+    batch = _terminal_batch(rng.normal(size=(40, 3)), rng.random((40, 2)), rng.random(40))
+    plain = sac_losses(policy, critics, target, batch, 0.1)["q"]
+    penalised = sac_losses(policy, critics, target, batch, 0.1, grad_penalty=0.5)["q"]
+    h, slopes = 1e-3, []
+    with torch.no_grad():
+        for k in range(2):
+            step = torch.zeros(2)
+            step[k] = h
+            up, down = critics(batch.obs, batch.samples + step), critics(batch.obs, batch.samples - step)
+            slopes.append((up - down).sum(0) / (2 * h))
+    expected = 0.5 * (torch.stack(slopes, -1) ** 2).sum(-1).mean()
+    assert (penalised - plain).item() == pytest.approx(expected.item(), rel=1e-2)
+    assert torch.equal(sac_losses(policy, critics, target, batch, 0.1, grad_penalty=0.0)["q"], plain)
+
+
 @pytest.mark.parametrize(
     ("key", "value", "message"),
     [("n_critics", 1, "sac.n_critics must be at least 2"), ("actor_q", "max", "sac.actor_q must be 'min' or 'mean'")],
