@@ -14,6 +14,7 @@ from hrtc.learner import Step
 from hrtc.policy import ActorCritic
 from hrtc.sac import (
     NStepAccumulator,
+    ReplayBatch,
     ReplayBuffer,
     SACConfig,
     SACLearner,
@@ -145,8 +146,6 @@ def _terminal_batch(obs: np.ndarray, samples: np.ndarray, rewards: np.ndarray):
     buffer = ReplayBuffer(n, obs.shape[1], samples.shape[1])
     buffer.add(obs, samples, rewards, obs, np.ones(n), np.full(n, 0.9))
     state = buffer.state_dict()
-    from hrtc.sac import ReplayBatch
-
     return ReplayBatch(*(state[k] for k in ("obs", "samples", "rewards", "next_obs", "terminated", "discount")))
 
 
@@ -173,9 +172,13 @@ def test_the_critics_gradient_penalty_is_the_squared_slope_in_the_weights():
 
 @pytest.mark.parametrize(
     ("key", "value", "message"),
-    [("n_critics", 1, "sac.n_critics must be at least 2"), ("actor_q", "max", "sac.actor_q must be 'min' or 'mean'")],
+    [
+        ("n_critics", 1, "sac.n_critics must be at least 2"),
+        ("actor_q", "max", "sac.actor_q must be 'min' or 'mean'"),
+        ("critic_grad_penalty", -0.1, "sac.critic_grad_penalty must be >= 0"),
+    ],
 )
-def test_bad_ensemble_settings_are_one_config_error(key, value, message):
+def test_bad_ensemble_and_penalty_settings_are_one_config_error(key, value, message):
     from hrtc.errors import ConfigError
 
     with pytest.raises(ConfigError, match=message):
