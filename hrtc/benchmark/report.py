@@ -402,9 +402,11 @@ def write_report(results: Mapping[str, Any], out: Path, rule: SolveRule) -> str:
     base = results.get("final_seed_base")
     where = "evaluation seeds" if base is None else f"seeds {base:,} + 1000 seed + k"
     seed = results.get("reference_seed", 1)
-    seeds = f"of every run seed ({', '.join(map(str, results['seeds']))}), one after the other" if seed == "runs" else (
-        f"of seed {seed}")  # fmt: skip
-    lines += reference_lines(results.get("references"), f"{where} {seeds}")
+    if seed == "runs":
+        where += f" of every run seed ({', '.join(map(str, results['seeds']))}), one after the other"
+    else:
+        where += f" of seed {seed}"
+    lines += reference_lines(results.get("references"), where)
     lines += ["", "Notes:", *(f"- {note}" for note in results["notes"])] if results.get("notes") else []
     text = "\n".join(lines) + "\n"
     (out / "table.md").write_text(text)

@@ -85,6 +85,15 @@ def diagnose(path: str, episodes: int) -> dict[str, float]:
 ANGLE_BANDS = (0.0, 0.2, 0.5, 1.0, 2.0, 3.2)
 
 
+def print_bands(angle: np.ndarray, weights: np.ndarray, indent: str = "  ") -> None:
+    """The mean of ``weights`` (N, K) over the decisions in each band of ``angle`` (N,), one line per non-empty band."""
+    for lo, hi in zip(ANGLE_BANDS[:-1], ANGLE_BANDS[1:], strict=True):
+        band = (angle >= lo) & (angle < hi)
+        if band.any():
+            means = " ".join(f"{v:.2f}" for v in weights[band].mean(0))
+            print(f"{indent}|angle| {lo:.1f}-{hi:.1f}: {int(band.sum()):4d} decisions, weights {means}")
+
+
 def margin_of(meta: dict) -> float:
     """The checkpoint's weight span margin (checkpoints of the option's prototype record only the action bounds)."""
     return float(meta.get("weight_margin", -min(meta.get("action_low") or [0.0])))
@@ -106,13 +115,8 @@ def by_angle(path: str, episodes: int) -> None:
 
     returns = run_episodes(env, decide, eval_seeds(1, episodes))
     table = np.array(rows)
-    names = " ".join(f"{name:>8s}" for name in meta.get("skills", [])) or "weights"
-    print(f"{path}: returns {np.round(returns, 1).tolist()}\n  |angle| (rad)  decisions  {names}")
-    for lo, hi in zip(ANGLE_BANDS[:-1], ANGLE_BANDS[1:], strict=True):
-        band = table[(table[:, 0] >= lo) & (table[:, 0] < hi)]
-        if len(band):
-            means = " ".join(f"{v:8.2f}" for v in band[:, 1:].mean(0))
-            print(f"  {lo:.1f}-{hi:.1f}        {len(band):5d}      {means}")
+    print(f"{path}: {' '.join(meta.get('skills', []))}, returns {np.round(returns, 1).tolist()}")
+    print_bands(table[:, 0], table[:, 1:])
 
 
 def recording_by_angle(run_dir: str, steps: list[int]) -> None:
@@ -125,13 +129,7 @@ def recording_by_angle(run_dir: str, steps: list[int]) -> None:
         decisions = review.steps[review.steps.episode.isin(episodes.episode)]
         weights, angle = np.stack(decisions.weights.values), np.abs(decisions.key.values)
         print(f"  {step} env steps: returns {episodes['return'].round(0).tolist()}")
-        for lo, hi in zip(ANGLE_BANDS[:-1], ANGLE_BANDS[1:], strict=True):
-            band = (angle >= lo) & (angle < hi)
-            if band.any():
-                print(
-                    f"    |angle| {lo:.1f}-{hi:.1f}: {int(band.sum()):4d} decisions, weights "
-                    + " ".join(f"{v:.2f}" for v in weights[band].mean(0))
-                )
+        print_bands(angle, weights, indent="    ")
 
 
 def critic_gradients(path: str) -> None:
