@@ -46,14 +46,17 @@ class SACConfig:
     n_critics: int = 2  # critics Q_1..Q_N; each target takes the min of a random pair of them (REDQ's M = 2)
     actor_q: str = "min"  # what the actor maximises: "min" over all N critics (SAC's) or their "mean" (REDQ's)
     critic_grad_penalty: float = 0.0  # lambda: the critics' loss adds lambda * E ||d(sum_i Q_i) / dw||^2 (stored w)
+    critic_grad_penalty_start: int = 0  # decisions (summed over envs) observed before the penalty applies
 
     def __post_init__(self) -> None:
         for name in ("batch_size", "buffer_size", "log_every", "n_step", "n_critics"):
             value = getattr(self, name)
             if not isinstance(value, int) or isinstance(value, bool) or value < 1:
                 raise ConfigError(f"sac.{name} must be a positive integer, got {value!r}")
-        if not isinstance(self.learning_starts, int) or self.learning_starts < 0:
-            raise ConfigError(f"sac.learning_starts must be a non-negative integer, got {self.learning_starts!r}")
+        for name in ("learning_starts", "critic_grad_penalty_start"):
+            value = getattr(self, name)
+            if not isinstance(value, int) or isinstance(value, bool) or value < 0:
+                raise ConfigError(f"sac.{name} must be a non-negative integer, got {value!r}")
         if not 0.0 < self.learning_rate < 1.0:
             raise ConfigError(f"sac.learning_rate must be in (0, 1), got {self.learning_rate}")
         if not 0.0 <= self.gamma <= 1.0:
@@ -343,8 +346,9 @@ class SACLearner:
         pair = (0, 1)
         if self.cfg.n_critics > 2:  # REDQ: a fresh random pair per gradient step (two critics draw nothing)
             pair = tuple(torch.randperm(self.cfg.n_critics, generator=self.generator)[:2].tolist())
+        penalty = self.cfg.critic_grad_penalty if self.decisions >= self.cfg.critic_grad_penalty_start else 0.0
         losses = sac_losses(self.policy, self.critics, self.target_critics, batch, temperature, pair, self.cfg.actor_q,
-                            self.cfg.critic_grad_penalty)  # fmt: skip
+                            penalty)  # fmt: skip
         # Each backward pass accumulates into its own parameters only: the actor's loss never moves the critics.
         self.actor_optimizer.zero_grad()
         (losses["actor"] + losses["value"]).backward(inputs=list(self.policy.parameters()))

@@ -176,6 +176,7 @@ def test_the_critics_gradient_penalty_is_the_squared_slope_in_the_weights():
         ("n_critics", 1, "sac.n_critics must be at least 2"),
         ("actor_q", "max", "sac.actor_q must be 'min' or 'mean'"),
         ("critic_grad_penalty", -0.1, "sac.critic_grad_penalty must be >= 0"),
+        ("critic_grad_penalty_start", -1, "sac.critic_grad_penalty_start must be a non-negative integer"),
     ],
 )
 def test_bad_ensemble_and_penalty_settings_are_one_config_error(key, value, message):
@@ -266,6 +267,30 @@ def test_learner_takes_updates_per_decision_gradient_steps_after_learning_starts
         learner.update()
     assert learner.gradient_steps == 7
 
+
+
+def _critics_after(cfg: SACConfig, n_steps: int) -> list[torch.Tensor]:
+    """The critics' parameters after ``n_steps`` observed steps of 2 envs (varied states, rewards and weights)."""
+    torch.manual_seed(0)
+    learner = SACLearner(ActorCritic(2, 2, "beta", (8,)), cfg, 0.9, torch.Generator().manual_seed(0))
+    rng = np.random.default_rng(0)
+    for _ in range(n_steps):
+        obs, nxt = rng.normal(size=(2, 2)).astype(np.float32), rng.normal(size=(2, 2)).astype(np.float32)
+        no = np.zeros(2, bool)
+        learner.observe(Step(obs, rng.random((2, 2)).astype(np.float32), rng.normal(size=2), nxt, no, no))
+        learner.update()
+    return [p.detach().clone() for p in learner.critics.parameters()]
+
+
+def test_the_critics_penalty_applies_only_from_its_start():
+    """Before ``critic_grad_penalty_start`` decisions a penalised learner trains exactly as an unpenalised one; from
+    then on its critics move differently."""
+    base = dict(batch_size=4, learning_starts=4, q_hidden=(8,), log_every=1000)
+    plain = _critics_after(SACConfig(**base), 10)
+    late = _critics_after(SACConfig(**base, critic_grad_penalty=1.0, critic_grad_penalty_start=21), 10)
+    early = _critics_after(SACConfig(**base, critic_grad_penalty=1.0, critic_grad_penalty_start=10), 10)
+    assert all(torch.equal(a, b) for a, b in zip(plain, late, strict=True))  # 20 decisions observed: the start (21) not reached
+    assert not all(torch.equal(a, b) for a, b in zip(plain, early, strict=True))  # on from the 10th decision (5th step)
 
 # --------------------------------------------------------------------------------------------------- learning
 SWITCH_TASK = "test_switch_line"
