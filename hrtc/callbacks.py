@@ -25,7 +25,7 @@ from typing import Any, NamedTuple, Protocol
 
 import numpy as np
 
-from hrtc.episodes import beta_parameters, eval_seeds, evaluate
+from hrtc.episodes import beta_parameters, eval_seeds, evaluate_episodes
 from hrtc.errors import HRTCError, SkillError
 from hrtc.logging import Sink
 from hrtc.logging.trace import Recorder
@@ -123,7 +123,10 @@ class SkillFaults(BaseCallback):
 # train/true_episode_reward: the task's own return where the env shapes its reward (info["true_reward"]).
 TRAIN_COLUMNS = ("episodes", "train/episode_reward", "train/true_episode_reward", "charts/SPS", "charts/rollout_SPS",
                  "charts/update_seconds")  # fmt: skip
-EVAL_COLUMNS = ("episode_reward", "episode_reward_std", "episodes", "train_episodes", "wall_seconds")
+# true_episode_reward: the evaluation episodes' mean of the task's own return (the same as episode_reward where the
+# env does not shape its reward).
+EVAL_COLUMNS = ("episode_reward", "episode_reward_std", "episodes", "train_episodes", "wall_seconds",
+                "true_episode_reward")  # fmt: skip
 
 
 def csv_columns(learner_columns: Sequence[str], skill_names: Sequence[str]) -> dict[str, tuple[str, ...]]:
@@ -255,11 +258,13 @@ class Evaluation(BaseCallback):
     def evaluate(self, run: Run, last: bool = False) -> float:
         if self.recorder is not None:
             self.recorder.start_evaluation(run.global_step, last)
-        returns = evaluate(self.policy, self.normalizer, self.env, self.seeds, self.dist, self.recorder, self.render)
+        returns, true_returns = evaluate_episodes(self.policy, self.normalizer, self.env, self.seeds, self.dist,
+                                                  self.recorder, self.render)  # fmt: skip
         mean = float(returns.mean())
         self.write("eval", run.global_step, {"episode_reward": mean, "episode_reward_std": float(returns.std()),
                                              "episodes": len(returns), "train_episodes": run.episodes,
-                                             "wall_seconds": run.wall_seconds()})  # fmt: skip
+                                             "wall_seconds": run.wall_seconds(),
+                                             "true_episode_reward": float(true_returns.mean())})  # fmt: skip
         run.last_eval = mean
         if mean > run.best_eval:
             run.best_eval = mean

@@ -32,6 +32,17 @@ def make_env(task: str, algo: str, skills: Mapping[str, Any], action_filter: str
     return env
 
 
+# env_kwargs that write into a training run's directory (carracing's log of every finished episode, which the
+# benchmark's solve rules read): a saved run's settings without them for any later evaluation of its checkpoints.
+RUN_LOG_KWARGS = ("episode_log",)
+
+
+def evaluation_env_kwargs(env_kwargs: Mapping[str, Any] | None) -> dict[str, Any]:
+    """A saved run's ``env_kwargs`` for evaluating its policy: without :data:`RUN_LOG_KWARGS`, so the evaluation's
+    episodes never land in the training run's logs."""
+    return {k: v for k, v in dict(env_kwargs or {}).items() if k not in RUN_LOG_KWARGS}
+
+
 def env_factory(cfg: Any) -> Callable[[], gym.Env]:
     """A picklable thunk building the env of run config ``cfg`` (a :class:`~hrtc.config.RunConfig`), so that
     vector-environment workers build their own env and skills."""

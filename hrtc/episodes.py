@@ -37,6 +37,50 @@ def eval_seeds(seed: int, episodes: int) -> list[int]:
     return [1_000_000 + 1_000 * seed + k for k in range(episodes)]
 
 
+class EpisodeReturns(NamedTuple):
+    """Per-episode sums over :func:`play_episodes`' episodes: ``returns`` of the reward the learner sees, and
+    ``true_returns`` of the task's own reward (``info["true_reward"]`` where the env shapes its reward, e.g.
+    ``carracing_paper``; the same as ``returns`` where it does not)."""
+
+    returns: np.ndarray
+    true_returns: np.ndarray
+
+
+def play_episodes(
+    env: gym.Env,
+    decide: Callable[[np.ndarray], Decision],
+    seeds: Sequence[int],
+    recorder: Recorder | None = None,
+    render: Callable[[], np.ndarray | None] | None = None,
+    values: Callable[[np.ndarray], np.ndarray] | None = None,
+) -> EpisodeReturns:
+    """One episode per seed acting with ``decide``: their returns and true returns. With a ``recorder`` every decision
+    is traced (weights, alpha/beta, proposals, action, reward, skill diagnostics, and frames from ``render`` when the
+    recorder asks) and handed over when the episode ends, with ``values`` of the traced observations (one batch)."""
+    returns, true_returns = [], []
+    for episode, seed in enumerate(seeds):
+        obs, _ = env.reset(seed=int(seed))
+        trace = recorder.begin(episode, int(seed), render) if recorder is not None else None
+        total, true_total, done = 0.0, 0.0, False
+        while not done:
+            decision = decide(obs)
+            obs, reward, terminated, truncated, info = env.step(decision.action)
+            total += float(reward)
+            true_total += float(info.get("true_reward", reward))
+            done = terminated or truncated
+            if trace is not None:
+                d = decision
+                trace.add(d.obs, d.weights, d.alpha, d.beta, d.action, float(reward), info)
+        returns.append(total)
+        true_returns.append(true_total)
+        if trace is not None and recorder is not None:
+            trace.episode_return = total
+            if values is not None and trace.obs:
+                trace.values = values(np.stack(trace.obs))
+            recorder.end(trace)
+    return EpisodeReturns(np.asarray(returns), np.asarray(true_returns))
+
+
 def run_episodes(
     env: gym.Env,
     decide: Callable[[np.ndarray], Decision],
@@ -45,29 +89,8 @@ def run_episodes(
     render: Callable[[], np.ndarray | None] | None = None,
     values: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> np.ndarray:
-    """Returns of one episode per seed acting with ``decide``. With a ``recorder`` every decision is traced (weights,
-    alpha/beta, proposals, action, reward, skill diagnostics, and frames from ``render`` when the recorder asks) and
-    handed over when the episode ends, with ``values`` of the traced observations (one batch)."""
-    returns = []
-    for episode, seed in enumerate(seeds):
-        obs, _ = env.reset(seed=int(seed))
-        trace = recorder.begin(episode, int(seed), render) if recorder is not None else None
-        total, done = 0.0, False
-        while not done:
-            decision = decide(obs)
-            obs, reward, terminated, truncated, info = env.step(decision.action)
-            total += float(reward)
-            done = terminated or truncated
-            if trace is not None:
-                d = decision
-                trace.add(d.obs, d.weights, d.alpha, d.beta, d.action, float(reward), info)
-        returns.append(total)
-        if trace is not None and recorder is not None:
-            trace.episode_return = total
-            if values is not None and trace.obs:
-                trace.values = values(np.stack(trace.obs))
-            recorder.end(trace)
-    return np.asarray(returns)
+    """The returns of :func:`play_episodes` (the reward the learner sees)."""
+    return play_episodes(env, decide, seeds, recorder, render, values).returns
 
 
 def mode_decider(policy: ActorCritic, normalizer: ObsNormalizer | None, space: gym.spaces.Box,
@@ -88,6 +111,27 @@ def mode_decider(policy: ActorCritic, normalizer: ObsNormalizer | None, space: g
 
 
 @torch.no_grad()
+def evaluate_episodes(
+    policy: ActorCritic,
+    normalizer: ObsNormalizer | None,
+    env: gym.Env,
+    seeds: Sequence[int],
+    dist: str,
+    recorder: Recorder | None = None,
+    render: Callable[[], np.ndarray | None] | None = None,
+) -> EpisodeReturns:
+    """Returns and true returns of one deterministic episode per seed (:func:`mode_decider`); recorded with the
+    master critic's values when a ``recorder`` is given (see :func:`play_episodes`)."""
+    device = next(policy.parameters()).device
+
+    def values(obs: np.ndarray) -> np.ndarray:
+        with torch.no_grad():
+            return policy.value(torch.as_tensor(obs, device=device)).cpu().numpy()
+
+    decide = mode_decider(policy, normalizer, env.action_space, dist)  # type: ignore[arg-type]
+    return play_episodes(env, decide, seeds, recorder, render, values if recorder is not None else None)
+
+
 def evaluate(
     policy: ActorCritic,
     normalizer: ObsNormalizer | None,
@@ -97,16 +141,8 @@ def evaluate(
     recorder: Recorder | None = None,
     render: Callable[[], np.ndarray | None] | None = None,
 ) -> np.ndarray:
-    """Returns of one deterministic episode per seed (:func:`mode_decider`); recorded with the master critic's
-    values when a ``recorder`` is given (see :func:`run_episodes`)."""
-    device = next(policy.parameters()).device
-
-    def values(obs: np.ndarray) -> np.ndarray:
-        with torch.no_grad():
-            return policy.value(torch.as_tensor(obs, device=device)).cpu().numpy()
-
-    decide = mode_decider(policy, normalizer, env.action_space, dist)  # type: ignore[arg-type]
-    return run_episodes(env, decide, seeds, recorder, render, values if recorder is not None else None)
+    """The returns of :func:`evaluate_episodes`."""
+    return evaluate_episodes(policy, normalizer, env, seeds, dist, recorder, render).returns
 
 
 def beta_parameters(distribution: Any) -> tuple[np.ndarray | None, np.ndarray | None]:

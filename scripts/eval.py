@@ -70,6 +70,7 @@ def prepare(opts: dict) -> Setup:
     (built, reset, and its sizes checked against the policy's), the output directory."""
     from hrtc.checkpoint import load_policy
     from hrtc.cli import build_env, check_checkpoint_fits, output_path, task_config
+    from hrtc.environments import evaluation_env_kwargs
     from hrtc.episodes import eval_seeds
 
     path = Path(opts["checkpoint"])
@@ -78,7 +79,7 @@ def prepare(opts: dict) -> Setup:
         raise HRTCError(f"{path} predates checkpoints that describe their task's skills; re-save it with this version")
     task = opts["task"] or str(meta["task"])
     if task == meta["task"]:
-        base = dict(meta["env_kwargs"] or {})
+        base = evaluation_env_kwargs(meta["env_kwargs"])  # never the training run's episode log
     else:
         base = dict(task_config(task).get("env_kwargs") or {}) if task in cli.group_choices("task") else {}
     env_kwargs = {**base, **opts["env_kwargs"]}
@@ -108,7 +109,7 @@ def run(opts: dict, setup: Setup) -> str:
     import numpy as np
 
     from hrtc.environments import frame_source
-    from hrtc.episodes import eval_seeds, evaluate
+    from hrtc.episodes import eval_seeds, evaluate_episodes
     from hrtc.logging.trace import (
         RecordingConfig,
         TraceCollector,
@@ -138,7 +139,8 @@ def run(opts: dict, setup: Setup) -> str:
         render = frame_source(env, cfg.frame_size) if cfg.frames else None
     collector = TraceCollector(recorder)
     try:
-        returns = evaluate(policy, normalizer, env, eval_seeds(seed, episodes), meta["dist"], collector, render)
+        returns, true_returns = evaluate_episodes(policy, normalizer, env, eval_seeds(seed, episodes), meta["dist"],
+                                                  collector, render)  # fmt: skip
     finally:
         env.close()
         if recorder is not None:
@@ -147,6 +149,9 @@ def run(opts: dict, setup: Setup) -> str:
     lines = [f"{path}: {meta['algo']}-{meta['dist']} (trained on {meta['task']}) on {task}{physics}",
              format_returns(returns),
              "per episode: " + " ".join(f"{r:.1f}" for r in returns)]  # fmt: skip
+    if not np.allclose(true_returns, returns):  # a task that shapes its reward: its own return too
+        lines += [f"the task's own return: {format_returns(true_returns)}",
+                  "per episode: " + " ".join(f"{r:.1f}" for r in true_returns)]  # fmt: skip
     if meta["algo"] == "hrtc":
         weights = np.concatenate([np.asarray(t.weights) for t in collector.traces])
         alpha = np.concatenate([np.asarray(t.alpha) for t in collector.traces]) if collector.traces[0].alpha else None

@@ -58,10 +58,11 @@ def after_training(spec: Any, started: float) -> dict[str, Any]:
 def checkpoint_env(meta: Mapping[str, Any], decision_every: int | None = None) -> gym.Env:
     """The env a checkpoint's policy acts in (its task, skills and env_kwargs), deciding every ``decision_every``
     env steps (default: the checkpoint's own rate)."""
-    from hrtc.environments import make_env
+    from hrtc.environments import evaluation_env_kwargs, make_env
 
     every = int(meta["decision_every"]) if decision_every is None else decision_every
-    return make_env(meta["task"], meta["algo"], meta["skills_cfg"], meta["action_filter"], meta["env_kwargs"], every,
+    kwargs = evaluation_env_kwargs(meta["env_kwargs"])  # never the training run's episode log
+    return make_env(meta["task"], meta["algo"], meta["skills_cfg"], meta["action_filter"], kwargs, every,
                     weight_margin=float(meta.get("weight_margin", 0.0)))  # fmt: skip
 
 

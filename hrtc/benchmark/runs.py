@@ -63,7 +63,8 @@ SETTINGS: dict[str, str] = {
     "weight vector, the task's decision rate): an off-the-shelf agent on our composition",
 }
 
-CURVE_KEYS = ("step", "episode_reward", "episode_reward_std", "episodes", "wall_seconds", "solve_reward")
+# true_reward: the evaluation's mean of the task's own return (None where it was not recorded: runs before it existed)
+CURVE_KEYS = ("step", "episode_reward", "episode_reward_std", "episodes", "wall_seconds", "solve_reward", "true_reward")
 
 
 @dataclass(frozen=True)
@@ -175,7 +176,7 @@ class _EvalCollector:
         path = Path(self.spec.run_dir) / "curve.json"
         saved = json.loads(path.read_text()) if path.exists() else self._from_eval_csv()
         keep = [i for i, s in enumerate(saved.get("step", [])) if s <= step]
-        self.curve = {k: [saved[k][i] for i in keep] for k in CURVE_KEYS}
+        self.curve = {k: [saved[k][i] if k in saved else None for i in keep] for k in CURVE_KEYS}
         if self.deadline is not None:
             self.deadline -= wall_before
 
@@ -187,7 +188,9 @@ class _EvalCollector:
             return {}
         rows = pd.read_csv(path)
         rewards = rows["episode_reward"].tolist()
+        true = rows["true_episode_reward"].tolist() if "true_episode_reward" in rows else [None] * len(rewards)
         return {"step": rows["step"].astype(int).tolist(), "episode_reward": rewards,
+                "true_reward": [None if v is None or v != v else v for v in true],  # NaN: a row from before the column
                 "episode_reward_std": rows["episode_reward_std"].tolist(),
                 "episodes": rows["train_episodes"].astype(int).tolist(), "wall_seconds": rows["wall_seconds"].tolist(),
                 # a confirming rule's extra episodes were not logged: those evaluations count as unconfirmed
@@ -207,6 +210,8 @@ class _EvalCollector:
         self.curve["episode_reward_std"].append(float(metrics["episode_reward_std"]))
         self.curve["episodes"].append(int(metrics["train_episodes"]))
         self.curve["wall_seconds"].append(float(metrics["wall_seconds"]))
+        true = metrics.get("true_episode_reward")
+        self.curve["true_reward"].append(None if true is None else float(true))
         self.curve["solve_reward"].append(confirm_solve(self.spec, self.curve, self._returns))
         (Path(self.spec.run_dir) / "curve.json").write_text(json.dumps(self.curve))
 
@@ -395,14 +400,20 @@ def sb3_model(name: str, env: gym.Env, seed: int, overrides: tuple[str, ...] = (
 
 
 def sb3_evaluate(model: Any, env: gym.Env, seeds: list[int]) -> np.ndarray:
-    """Returns of one deterministic episode per seed (the one episode loop: :func:`hrtc.episodes.run_episodes`)."""
-    from hrtc.episodes import Decision, run_episodes
+    """Returns of one deterministic episode per seed (:func:`sb3_episodes`)."""
+    return sb3_episodes(model, env, seeds).returns
+
+
+def sb3_episodes(model: Any, env: gym.Env, seeds: list[int]) -> Any:
+    """Returns and true returns of one deterministic episode per seed (the one episode loop:
+    :func:`hrtc.episodes.play_episodes`)."""
+    from hrtc.episodes import Decision, play_episodes
 
     def decide(obs: np.ndarray) -> Decision:
         action, _ = model.predict(obs, deterministic=True)
         return Decision(obs, action, action)
 
-    return run_episodes(env, decide, seeds)
+    return play_episodes(env, decide, seeds)
 
 
 def sb3_train(spec: RunSpec, task: Mapping[str, Any] | None = None, decision_every: int = 1,
@@ -441,7 +452,8 @@ def sb3_train(spec: RunSpec, task: Mapping[str, Any] | None = None, decision_eve
     tic, train_seconds = time.perf_counter(), 0.0
 
     def record() -> None:
-        returns = sb3_evaluate(model, eval_env, seeds)
+        returns, true_returns = sb3_episodes(model, eval_env, seeds)
+        curve["true_reward"].append(float(true_returns.mean()))
         curve["step"].append(int(model.num_timesteps) * per_action)
         curve["episode_reward"].append(float(returns.mean()))
         curve["episode_reward_std"].append(float(returns.std()))

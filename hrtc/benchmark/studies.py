@@ -180,13 +180,27 @@ def episodes_lines(by_algo: Mapping[str, Mapping[int, Any]], rule: SolveRule, me
                          f"| {paper.get(algo, '—')} | {_join(hours[:-1] if algo in paper else [], 1) or '—'} "
                          f"| {hours[-1]:.1f} |")  # fmt: skip
     for name, (_, curve) in plotted.items():
-        evals = ", ".join(f"{e:.0f} after {n} episodes" for n, e in zip(curve["episodes"], curve["episode_reward"],
-                                                                            strict=True))  # fmt: skip
-        lines.append(f"\nEvaluations of {name} (deterministic: the distribution's mode): {evals}.")
+        lines.append(f"\n{_evaluations_line(name, curve, rule.threshold)}")
     if plotted:
         _plot_episodes(plotted, rule.threshold, windows[0], out / "episodes.png")
         lines += ["", "![training episodes](episodes.png)"]
     return lines
+
+
+def _evaluations_line(name: str, curve: Mapping[str, Any], threshold: float) -> str:
+    """A run's deterministic evaluations, with the task's own (true) return beside a shaped one where it was recorded,
+    and rule (c): the evaluations' true return reaching ``threshold``."""
+    true = curve.get("true_reward") or [None] * len(curve["episode_reward"])
+    cells = [f"{e:.0f}" + ("" if t is None or abs(t - e) < 0.5 else f" (true {t:.0f})") + f" after {n} episodes"
+             for n, e, t in zip(curve["episodes"], curve["episode_reward"], true, strict=True)]  # fmt: skip
+    line = f"Evaluations of {name} (deterministic: the distribution's mode): {', '.join(cells)}."
+    recorded = [t for t in true if t is not None]
+    if recorded:
+        best = max(recorded)
+        verdict = "passed: confirm on 10 tracks" if best >= threshold else "not reached"
+        line += (f" Rule (c), the evaluations' true return >= {threshold:g}: best {best:.0f} over the "
+                 f"{len(recorded)} evaluations that recorded it ({verdict}).")  # fmt: skip
+    return line
 
 
 def _reached(episode: int | None, frames_to: np.ndarray) -> str:

@@ -19,8 +19,9 @@ class Sink(Protocol):
 class CsvSink:
     """One CSV per stream in ``run_dir``, columns fixed by ``columns[stream]``; each row is flushed when written.
 
-    With ``append=True`` existing files are continued (their header is kept), for a resumed run; with ``keep_until``
-    their rows of a later step (and a last line cut short by a crash) are dropped first.
+    With ``append=True`` existing files are continued, for a resumed run; with ``keep_until`` their rows of a later
+    step (and a last line cut short by a crash) are dropped first. A file written before a column was added gains it
+    (empty in its old rows; :func:`widen_header`), so every row stays under its own header.
     """
 
     def __init__(self, run_dir: str | Path, columns: Mapping[str, Sequence[str]], append: bool = False,
@@ -34,8 +35,9 @@ class CsvSink:
             if append and keep_until is not None and path.exists():
                 truncate_rows(path, keep_until)
             existing = append and path.exists() and path.stat().st_size > 0
+            fields = widen_header(path, cols) if existing else cols
             handle = open(path, "a" if existing else "w", newline="")
-            writer = csv.DictWriter(handle, fieldnames=cols, extrasaction="ignore")
+            writer = csv.DictWriter(handle, fieldnames=fields, extrasaction="ignore")
             if not existing:
                 writer.writeheader()
                 handle.flush()
@@ -52,6 +54,29 @@ class CsvSink:
         for handle in self._files.values():
             handle.close()
         self._files.clear()
+
+
+def widen_header(path: Path, columns: Sequence[str]) -> list[str]:
+    """The header of CSV ``path`` once it holds every one of ``columns``: the file is rewritten (atomically) with
+    the missing ones added after its own, empty in its rows; a header that has them all is left as it is."""
+    import os
+
+    with open(path, newline="") as handle:
+        rows = list(csv.reader(handle))
+    header = rows[0] if rows else []
+    missing = [c for c in columns if c not in header]
+    if not missing:
+        return header
+    widened = header + missing
+    tmp = path.with_suffix(".csv.tmp")
+    with open(tmp, "w", newline="") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(widened)
+        writer.writerows(row + [""] * len(missing) for row in rows[1:])
+        handle.flush()
+        os.fsync(handle.fileno())
+    os.replace(tmp, path)
+    return widened
 
 
 def truncate_rows(path: Path, keep_until: int) -> int:

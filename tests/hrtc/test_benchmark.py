@@ -278,6 +278,15 @@ def test_the_episodes_table_reports_each_solve_rule_with_its_episode_and_frames(
     # The running score lags the scores: it never passes 900 while they climb to 1000.
     assert "not reached" in cells and cells[6] == f"{(scores[-10:] - 100).mean():.0f}"
     assert (tmp_path / "episodes.png").stat().st_size > 5_000
+    evaluations = next(line for line in lines if line.lstrip().startswith("Evaluations of ppo_beta seed 1"))
+    assert "950 after 600 episodes." in evaluations and "Rule (c)" not in evaluations  # no true return recorded
+    # A run that recorded the evaluations' true returns (the first evaluation before the column existed):
+    curve["true_reward"] = [None, 880.0]
+    lines = episodes_lines({"ppo_beta": {1: {"episodes_log": log, "curve": curve}}}, SolveRule(900.0, 10),
+                           {"windows": [10]}, tmp_path)  # fmt: skip
+    evaluations = next(line for line in lines if line.lstrip().startswith("Evaluations of ppo_beta seed 1"))
+    assert "950 (true 880) after 600 episodes" in evaluations
+    assert "true return >= 900: best 880 over the 1 evaluations that recorded it (not reached)" in evaluations
 
 
 def test_a_resumed_run_keeps_its_curve_and_episode_log_up_to_its_checkpoint(tmp_path: Path) -> None:
@@ -302,6 +311,15 @@ def test_a_resumed_run_keeps_its_curve_and_episode_log_up_to_its_checkpoint(tmp_
     collector.restore(step=1000, wall_before=120.0)  # the checkpoint was saved at step 1000, after 2 minutes
     assert collector.curve["step"] == [0, 1000] and collector.curve["episode_reward"] == [1.0, 2.0]
     assert collector.deadline == pytest.approx(deadline - 120.0)
+    # A curve saved before the true return was recorded: its evaluations have none; the next one does.
+    (tmp_path / "curve.json").write_text(json.dumps({k: v for k, v in saved.items() if k != "true_reward"}))
+    collector = _EvalCollector(spec)
+    collector.restore(step=1000, wall_before=0.0)
+    assert collector.curve["true_reward"] == [None, None]
+    collector.write("eval", 2000, {"episode_reward": 3.0, "episode_reward_std": 0.0, "train_episodes": 9,
+                                   "wall_seconds": 5.0, "true_episode_reward": -4.0})  # fmt: skip
+    assert collector.curve["true_reward"] == [None, None, -4.0]
+    assert json.loads((tmp_path / "curve.json").read_text())["true_reward"] == [None, None, -4.0]
 
 
 def test_a_run_started_by_train_py_is_adopted_from_its_eval_csv(tmp_path: Path) -> None:
@@ -317,3 +335,36 @@ def test_a_run_started_by_train_py_is_adopted_from_its_eval_csv(tmp_path: Path) 
     collector.restore(step=25_000, wall_before=900.0)
     assert collector.curve["step"] == [0, 25_000] and collector.curve["episodes"] == [0, 180]
     assert collector.curve["solve_reward"] == [5.0, 40.0] and collector.deadline is None
+    assert collector.curve["true_reward"] == [None, None]  # an eval.csv from before the column
+    (tmp_path / "eval.csv").write_text(  # after a resumed run widened the header (CsvSink) and wrote on
+        "step,episode_reward,episode_reward_std,episodes,train_episodes,wall_seconds,true_episode_reward\n"
+        "0,5.0,1.0,3,0,2.0,\n25000,40.0,3.0,3,180,900.0,-60.5\n"
+    )
+    collector = _EvalCollector(spec)
+    collector.restore(step=25_000, wall_before=900.0)
+    assert collector.curve["true_reward"] == [None, -60.5]
+
+
+def test_evaluating_a_checkpoint_never_writes_into_its_training_runs_episode_log(tmp_path: Path) -> None:
+    """A benchmark run's env_kwargs carry ``episode_log`` (its solve rules read every training episode there); the
+    env that evaluates its checkpoint later is built without it, while the training env writes it."""
+    from hrtc.benchmark.metrics import checkpoint_env
+    from hrtc.environments import make_env
+
+    log = tmp_path / "episodes.csv"
+    kwargs = {"action_repeat": 8, "max_frames": 16, "episode_log": str(log)}
+    meta = {"task": "carracing", "algo": "ppo", "skills_cfg": {}, "action_filter": "sum", "env_kwargs": kwargs,
+            "decision_every": 1}  # fmt: skip
+
+    def one_episode(env) -> None:
+        env.reset(seed=0)
+        done = False
+        while not done:
+            _, _, terminated, truncated, _ = env.step(np.zeros(3, np.float32))
+            done = terminated or truncated
+        env.close()
+
+    one_episode(checkpoint_env(meta))
+    assert not log.exists() and meta["env_kwargs"]["episode_log"] == str(log)  # the saved settings left as they were
+    one_episode(make_env("carracing", "ppo", {}, "sum", kwargs, 1))
+    assert log.read_text().count("\n") == 1  # the training env's episode

@@ -162,15 +162,16 @@ class Constant(gym.Env):
     observation_space = gym.spaces.Box(-1.0, 1.0, (2,), np.float32)
     action_space = gym.spaces.Box(0.0, 1.0, (1,), np.float32)
 
-    def __init__(self) -> None:
-        self.reward, self.seeds = 0.0, []
+    def __init__(self, true_reward: float | None = None) -> None:
+        self.reward, self.seeds, self.true_reward = 0.0, [], true_reward
 
     def reset(self, *, seed=None, options=None):
         self.seeds.append(seed)
         return np.zeros(2, np.float32), {}
 
     def step(self, action):
-        return np.zeros(2, np.float32), self.reward, True, False, {}
+        info = {} if self.true_reward is None else {"true_reward": self.true_reward}  # a shaping env's own reward
+        return np.zeros(2, np.float32), self.reward, True, False, info
 
 
 class ListRecorder:
@@ -205,9 +206,19 @@ def test_evaluation_runs_on_its_schedule_writes_rows_and_saves_the_best():
     assert [(at, row["episode_reward"], row["episodes"]) for _, at, row in sink.rows] == [(0, 1.0, 2), (520, 0.5, 2),
                                                                                         (1_000, 2.0, 2)]  # fmt: skip
     assert sink.rows[0][2]["wall_seconds"] == 1.5
+    assert [row["true_episode_reward"] for _, _, row in sink.rows] == [1.0, 0.5, 2.0]  # no shaping: the same
     assert run.saved == [("best.pt", 0), ("best.pt", 1_000)] and run.best_eval == 2.0 and run.last_eval == 2.0
     assert recorder.evaluations == [(0, False), (520, False), (1_000, True)] and len(recorder.traces) == 6
     assert recorder.traces[0].values is not None  # the master critic's value of each traced decision
+
+
+def test_evaluation_of_a_shaping_env_writes_the_true_return_beside_the_shaped_one():
+    sink, run = ListSink(), FakeRun(steps=1_000)
+    env = Constant(true_reward=-3.0)
+    env.reward = 7.0
+    Evaluation(ActorCritic(2, 1), None, env, "beta", every=500, episodes=2, seed=1, write=sink.write).on_start(run)
+    ((_, _, row),) = sink.rows
+    assert row["episode_reward"] == 7.0 and row["true_episode_reward"] == -3.0
 
 
 def test_evaluation_of_a_resumed_run_waits_for_its_next_multiple():

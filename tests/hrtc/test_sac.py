@@ -268,7 +268,6 @@ def test_learner_takes_updates_per_decision_gradient_steps_after_learning_starts
     assert learner.gradient_steps == 7
 
 
-
 def _critics_after(cfg: SACConfig, n_steps: int) -> list[torch.Tensor]:
     """The critics' parameters after ``n_steps`` observed steps of 2 envs (varied states, rewards and weights)."""
     torch.manual_seed(0)
@@ -289,8 +288,10 @@ def test_the_critics_penalty_applies_only_from_its_start():
     plain = _critics_after(SACConfig(**base), 10)
     late = _critics_after(SACConfig(**base, critic_grad_penalty=1.0, critic_grad_penalty_start=21), 10)
     early = _critics_after(SACConfig(**base, critic_grad_penalty=1.0, critic_grad_penalty_start=10), 10)
-    assert all(torch.equal(a, b) for a, b in zip(plain, late, strict=True))  # 20 decisions observed: the start (21) not reached
-    assert not all(torch.equal(a, b) for a, b in zip(plain, early, strict=True))  # on from the 10th decision (5th step)
+    # 10 steps of 2 envs: 20 decisions, short of the late start (21); the early one applies from the 5th step on
+    assert all(torch.equal(a, b) for a, b in zip(plain, late, strict=True))
+    assert not all(torch.equal(a, b) for a, b in zip(plain, early, strict=True))
+
 
 # --------------------------------------------------------------------------------------------------- learning
 SWITCH_TASK = "test_switch_line"
