@@ -41,6 +41,7 @@ DEFAULTS: dict[str, Any] = {
     "eval_episodes": None,  # episodes of each periodic evaluation (default: solve_episodes, at most 10)
     "threshold": None,  # default: the task's solve_threshold
     "solve_episodes": None,  # episodes the threshold is averaged over (default: the task's solve_episodes, else 3)
+    "true_solve_episodes": 0,  # rule (c) on a shaping task: a true-return screen confirmed over this many episodes
     "collapse_window": 3,
     "final_episodes": 10,  # episodes of a last evaluation of each run's final policy
     "final_seed_base": None,  # their seeds: base + 1000 seed + k (None: the evaluation seeds)
@@ -203,6 +204,7 @@ def check(args: dict[str, Any]) -> dict[str, Any]:
         "eval_episodes": cli.optional(cli.integer(1)),
         "threshold": cli.optional(cli.number()),
         "solve_episodes": cli.optional(cli.integer(1)),
+        "true_solve_episodes": cli.integer(0),
         "collapse_window": cli.integer(1),
         "final_episodes": cli.integer(0),
         "final_seed_base": cli.optional(cli.integer(0)),
@@ -261,7 +263,7 @@ def specs_of(args: dict[str, Any], threshold: float, solve_episodes: int, episod
                 overrides=tuple(variant.get("overrides") or ()), root_ppo=bool(variant.get("root_ppo", True)),
                 final_seed_base=args["final_seed_base"], final_best=bool(args["final_best"]), metric=kind,
                 metric_args=metric, export=str(Path(export).resolve()) if export else None,
-                wall_minutes=args["wall_minutes"],
+                wall_minutes=args["wall_minutes"], true_solve_episodes=int(args["true_solve_episodes"]),
             ))  # fmt: skip
     return specs
 

@@ -63,8 +63,10 @@ SETTINGS: dict[str, str] = {
     "weight vector, the task's decision rate): an off-the-shelf agent on our composition",
 }
 
-# true_reward: the evaluation's mean of the task's own return (None where it was not recorded: runs before it existed)
-CURVE_KEYS = ("step", "episode_reward", "episode_reward_std", "episodes", "wall_seconds", "solve_reward", "true_reward")
+# true_reward: the evaluation's mean of the task's own return (None where it was not recorded: runs before it existed);
+# true_solve_reward: rule (c)'s mean true return over true_solve_episodes tracks, where the evaluation passed its screen
+CURVE_KEYS = ("step", "episode_reward", "episode_reward_std", "episodes", "wall_seconds", "solve_reward", "true_reward",
+              "true_solve_reward")  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -78,7 +80,12 @@ class RunSpec:
     task's PPO block for PPO on raw actions. After training: ``final_episodes`` deterministic episodes of the final
     policy (and of the best evaluated one with ``final_best``) on the seeds of ``final_seed_base`` (None: the
     evaluation seeds), the ``metric`` plug-in (:mod:`hrtc.benchmark.metrics`) with ``metric_args``, ``export``
-    (a path: a copy of the run's best checkpoint), ``wall_minutes`` (stop training after so many minutes)."""
+    (a path: a copy of the run's best checkpoint), ``wall_minutes`` (stop training after so many minutes).
+
+    ``true_solve_episodes`` > ``eval_episodes`` checks rule (c) on a shaping task (CarRacing's reference protocol): an
+    evaluation whose mean *true* return (the task's own reward) reaches ``solve_threshold`` is a screen, and the same
+    policy runs the remaining tracks at once (:func:`confirm_true_solve`). It changes no training, so results stored
+    before it (without the field) still answer the spec."""
 
     task: str
     algo: str
@@ -100,6 +107,7 @@ class RunSpec:
     metric_args: Mapping[str, Any] = field(default_factory=dict)
     export: str | None = None
     wall_minutes: float | None = None
+    true_solve_episodes: int = 0
 
     def __post_init__(self) -> None:
         if self.builtin not in ALGORITHMS:
@@ -194,7 +202,8 @@ class _EvalCollector:
                 "episode_reward_std": rows["episode_reward_std"].tolist(),
                 "episodes": rows["train_episodes"].astype(int).tolist(), "wall_seconds": rows["wall_seconds"].tolist(),
                 # a confirming rule's extra episodes were not logged: those evaluations count as unconfirmed
-                "solve_reward": [None if self.spec.confirms else r for r in rewards]}  # fmt: skip
+                "solve_reward": [None if self.spec.confirms else r for r in rewards],
+                "true_solve_reward": [None] * len(rewards)}  # fmt: skip
 
     def write(self, stream: str, step: int, metrics: Mapping[str, float]) -> None:
         if stream == "train":
@@ -213,6 +222,7 @@ class _EvalCollector:
         true = metrics.get("true_episode_reward")
         self.curve["true_reward"].append(None if true is None else float(true))
         self.curve["solve_reward"].append(confirm_solve(self.spec, self.curve, self._returns))
+        self.curve["true_solve_reward"].append(confirm_true_solve(self.spec, self.curve, self._true_returns))
         (Path(self.spec.run_dir) / "curve.json").write_text(json.dumps(self.curve))
 
     def _returns(self, seeds: list[int]) -> np.ndarray:
@@ -220,6 +230,12 @@ class _EvalCollector:
 
         t = self.trainer
         return evaluate(t.policy, t.normalizer, t.eval_env, seeds, t.cfg.dist)
+
+    def _true_returns(self, seeds: list[int]) -> np.ndarray:
+        from hrtc.episodes import evaluate_episodes
+
+        t = self.trainer
+        return evaluate_episodes(t.policy, t.normalizer, t.eval_env, seeds, t.cfg.dist).true_returns
 
     def close(self) -> None:
         pass
@@ -358,6 +374,25 @@ def confirm_solve(spec: RunSpec, curve: Mapping[str, list[Any]], returns_of: Any
     return float((screen * spec.eval_episodes + extra.sum()) / spec.solve_episodes)
 
 
+def confirm_true_solve(spec: RunSpec, curve: Mapping[str, list[Any]], true_returns_of: Any) -> float | None:
+    """Rule (c) for the evaluation just appended to ``curve``: the mean true return over ``spec.true_solve_episodes``
+    tracks (its own ``eval_episodes`` and the rest, run now by ``true_returns_of(seeds)``) when its true mean reaches
+    ``spec.solve_threshold`` and no earlier evaluation confirmed; else None. A screen that fails on all the tracks is
+    kept too (below the threshold), so the report can say so."""
+    from hrtc.episodes import eval_seeds
+
+    n, threshold = spec.true_solve_episodes, spec.solve_threshold
+    if threshold is None or n <= spec.eval_episodes:
+        return None
+    if any(v is not None and v >= threshold for v in curve["true_solve_reward"]):
+        return None  # confirmed already
+    screen = curve["true_reward"][-1]
+    if screen is None or screen < threshold:
+        return None
+    extra = true_returns_of(eval_seeds(spec.seed, n)[spec.eval_episodes :])
+    return float((screen * spec.eval_episodes + np.sum(extra)) / n)
+
+
 # --------------------------------------------------------------------------------------------------- stable-baselines3
 class EpisodeCounter(gym.Wrapper):
     """Counts finished training episodes (terminated or truncated), for the episodes axis of the curves."""
@@ -461,6 +496,9 @@ def sb3_train(spec: RunSpec, task: Mapping[str, Any] | None = None, decision_eve
         curve["wall_seconds"].append(time.perf_counter() - tic)
         curve["train_seconds"].append(train_seconds)  # in learn() only: the training throughput
         curve["solve_reward"].append(confirm_solve(spec, curve, lambda rest: sb3_evaluate(model, eval_env, rest)))
+        curve["true_solve_reward"].append(
+            confirm_true_solve(spec, curve, lambda rest: sb3_episodes(model, eval_env, rest).true_returns)
+        )
         _write_csv(Path(spec.run_dir) / "eval.csv", curve)  # a run's progress, as the trainer's eval.csv shows it
         if spec.final_best and curve["episode_reward"][-1] >= max(curve["episode_reward"]):
             model.save(best_path)

@@ -144,6 +144,7 @@ def episodes_lines(by_algo: Mapping[str, Mapping[int, Any]], rule: SolveRule, me
     cutoff = int(metric.get("cutoff", 10_000))
     heads = " | ".join(f"best {w}-mean | solved (mean {rule.threshold:g} over {w})" for w in windows)
     heads += f" | best running score | solved (running score > {rule.threshold:g})"
+    heads += f" | solved (c): evaluations' true return >= {rule.threshold:g}, confirmed on more tracks"
     lines = ["", "## Training episodes", "", "Returns of every training episode in the order they finished (the "
              "trainer's evaluation episodes left out; a shaping task's shaped score, the one the learner saw, with "
              "gymnasium's own return beside); frames/s over training and evaluation, updates included. Running score: "
@@ -152,7 +153,7 @@ def episodes_lines(by_algo: Mapping[str, Mapping[int, Any]], rule: SolveRule, me
              "1000 frames at the measured frames/s.", "",
              f"| run | episodes | frames | wall (min) | frames/s | last-10 mean | last-10 true return | {heads} "
              f"| paper: episodes to solve | projected h to the paper's episodes | projected h to {cutoff:,} episodes |",
-             "|---" * (12 + 2 * len(windows)) + "|"]  # fmt: skip
+             "|---" * (13 + 2 * len(windows)) + "|"]  # fmt: skip
     plotted = {}
     for algo, runs in by_algo.items():
         for seed, r in runs.items():
@@ -169,7 +170,8 @@ def episodes_lines(by_algo: Mapping[str, Mapping[int, Any]], rule: SolveRule, me
                 cells += ["n/a" if best is None else f"{best:.0f}", _reached(at, frames_to)]
             running = running_scores(x)
             cells += [f"{running.max():.0f}" if len(x) else "n/a",
-                      _reached(running_solved_at(x, rule.threshold), frames_to)]  # fmt: skip
+                      _reached(running_solved_at(x, rule.threshold), frames_to),
+                      _reached(true_solved_after(r["curve"], rule.threshold), frames_to)]  # fmt: skip
             ok = fps and math.isfinite(fps)
             last10 = f"{x[-10:].mean():.0f}" if len(x) >= 10 else "n/a"
             true10 = np.asarray(log.get("true_returns") or [math.nan], float)[-10:]
@@ -187,17 +189,35 @@ def episodes_lines(by_algo: Mapping[str, Mapping[int, Any]], rule: SolveRule, me
     return lines
 
 
+def true_solved_after(curve: Mapping[str, Any], threshold: float) -> int | None:
+    """Rule (c): the training episodes before the first evaluation whose true return, confirmed on all its tracks
+    (the curve's ``true_solve_reward``), reaches ``threshold``; None when none did (or none was screened)."""
+    confirmed = curve.get("true_solve_reward") or [None] * len(curve["episodes"])
+    hits = (int(n) for n, v in zip(curve["episodes"], confirmed, strict=True) if v is not None and v >= threshold)
+    return next(hits, None)
+
+
 def _evaluations_line(name: str, curve: Mapping[str, Any], threshold: float) -> str:
     """A run's deterministic evaluations, with the task's own (true) return beside a shaped one where it was recorded,
-    and rule (c): the evaluations' true return reaching ``threshold``."""
+    and rule (c): the evaluations' true return reaching ``threshold``, then confirmed on more tracks."""
     true = curve.get("true_reward") or [None] * len(curve["episode_reward"])
-    cells = [f"{e:.0f}" + ("" if t is None or abs(t - e) < 0.5 else f" (true {t:.0f})") + f" after {n} episodes"
-             for n, e, t in zip(curve["episodes"], curve["episode_reward"], true, strict=True)]  # fmt: skip
+    confirmed = curve.get("true_solve_reward") or [None] * len(true)
+    rows = zip(curve["episodes"], curve["episode_reward"], true, confirmed, strict=True)
+    cells = [f"{e:.0f}" + ("" if t is None or abs(t - e) < 0.5 else f" (true {t:.0f})")
+             + ("" if c is None else f" [more tracks: true {c:.0f}]") + f" after {n} episodes"
+             for n, e, t, c in rows]  # fmt: skip
     line = f"Evaluations of {name} (deterministic: the distribution's mode): {', '.join(cells)}."
     recorded = [t for t in true if t is not None]
     if recorded:
         best = max(recorded)
-        verdict = "passed: confirm on 10 tracks" if best >= threshold else "not reached"
+        solved = true_solved_after(curve, threshold)
+        if solved is not None:
+            verdict = f"confirmed after {solved} episodes"
+        elif best >= threshold:
+            failed = [c for c in confirmed if c is not None]
+            verdict = f"not confirmed on more tracks (best {max(failed):.0f})" if failed else "screen only: unconfirmed"
+        else:
+            verdict = "not reached"
         line += (f" Rule (c), the evaluations' true return >= {threshold:g}: best {best:.0f} over the "
                  f"{len(recorded)} evaluations that recorded it ({verdict}).")  # fmt: skip
     return line

@@ -24,7 +24,7 @@ from hrtc.benchmark.report import (
     outcome,
     summarize,
 )
-from hrtc.benchmark.runs import CURVE_KEYS, RunSpec, confirm_solve
+from hrtc.benchmark.runs import CURVE_KEYS, RunSpec, confirm_solve, confirm_true_solve
 from hrtc.episodes import eval_seeds
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -118,6 +118,34 @@ def test_screened_solve_rule_confirms_once_and_decides_on_the_long_mean() -> Non
     assert calls == [eval_seeds(1, 100)[10:]] * 2
     result = {"curve": {**curve, "step": [0, 10, 20, 30], "episodes": [0, 1, 2, 3], "wall_seconds": [0, 1, 2, 3]}}
     assert outcome(result, SolveRule(200.0, 100)).solved_step == 20  # not 10, where only the screen passed
+
+
+def test_rule_c_screens_the_true_return_and_confirms_once_on_all_tracks() -> None:
+    # CarRacing's rule (c): evaluations of 3 tracks; one whose *true* mean reaches 900 runs 7 more tracks at once.
+    spec = RunSpec("carracing_paper", "hrtc_beta", 2, 100, 10, 3, "unused", 1, solve_threshold=900.0,
+                   true_solve_episodes=10)  # fmt: skip
+    assert not spec.confirms  # the shaped evaluations' own rule is untouched
+    calls: list[list[int]] = []
+
+    def true_returns_of(seeds: list[int]) -> np.ndarray:
+        calls.append(list(seeds))
+        return np.full(len(seeds), 850.0 if len(calls) == 1 else 910.0)
+
+    curve: dict[str, list] = {k: [] for k in CURVE_KEYS}
+    # shaped returns above 900 everywhere: only the true ones screen. None: an evaluation that did not record it.
+    for shaped, true in ((1000.0, None), (1000.0, 880.0), (1000.0, 920.0), (1000.0, 905.0), (1000.0, 990.0)):
+        curve["episode_reward"].append(shaped)
+        curve["true_reward"].append(true)
+        curve["true_solve_reward"].append(confirm_true_solve(spec, curve, true_returns_of))
+    # 920 passes the screen, but (3 x 920 + 7 x 850) / 10 = 871 does not confirm; 905 does: (3 x 905 + 7 x 910) / 10.
+    assert curve["true_solve_reward"] == [None, None, pytest.approx(871.0), pytest.approx(908.5), None]
+    assert calls == [eval_seeds(2, 10)[3:]] * 2
+    # Without the setting (or with no more tracks than an evaluation runs) nothing is run.
+    for n in (0, 3):
+        quiet = RunSpec("carracing_paper", "hrtc_beta", 2, 100, 10, 3, "unused", 1, solve_threshold=900.0,
+                        true_solve_episodes=n)  # fmt: skip
+        assert confirm_true_solve(quiet, {"true_reward": [990.0], "true_solve_reward": []}, true_returns_of) is None
+    assert len(calls) == 2
 
 
 def test_fastest_counts_share_ties_and_skip_unsolved_seeds() -> None:
@@ -287,6 +315,23 @@ def test_the_episodes_table_reports_each_solve_rule_with_its_episode_and_frames(
     evaluations = next(line for line in lines if line.lstrip().startswith("Evaluations of ppo_beta seed 1"))
     assert "950 (true 880) after 600 episodes" in evaluations
     assert "true return >= 900: best 880 over the 1 evaluations that recorded it (not reached)" in evaluations
+    rule_c = cells[-4]  # the episodes table's rule (c) column (before the paper's and the projections)
+    assert rule_c == "not reached"
+    # Rule (c) screened twice: 930 failed on all 10 tracks (870), 960 confirmed (915) at the evaluation after 580.
+    curve = {"episodes": [0, 500, 580], "episode_reward": [0.0, 1000.0, 1040.0], "true_reward": [None, 930.0, 960.0],
+             "true_solve_reward": [None, 870.0, 915.0]}  # fmt: skip
+    lines = episodes_lines({"ppo_beta": {1: {"episodes_log": log, "curve": curve}}}, SolveRule(900.0, 10),
+                           {"windows": [10]}, tmp_path)  # fmt: skip
+    row = next(line for line in lines if line.startswith("| ppo_beta seed 1 |"))
+    assert [c.strip() for c in row.strip("|").split("|")][-4] == f"episode 580 ({580 * 800:,} frames)"
+    evaluations = next(line for line in lines if line.lstrip().startswith("Evaluations of ppo_beta seed 1"))
+    assert "1000 (true 930) [more tracks: true 870] after 500 episodes" in evaluations
+    assert "best 960 over the 2 evaluations that recorded it (confirmed after 580 episodes)" in evaluations
+    curve["true_solve_reward"] = [None, 870.0, None]  # the screen passed once and failed on all the tracks
+    lines = episodes_lines({"ppo_beta": {1: {"episodes_log": log, "curve": curve}}}, SolveRule(900.0, 10),
+                           {"windows": [10]}, tmp_path)  # fmt: skip
+    evaluations = next(line for line in lines if line.lstrip().startswith("Evaluations of ppo_beta seed 1"))
+    assert "(not confirmed on more tracks (best 870))" in evaluations
 
 
 def test_a_resumed_run_keeps_its_curve_and_episode_log_up_to_its_checkpoint(tmp_path: Path) -> None:
