@@ -528,6 +528,13 @@ class AcrobotUprightMPC(UprightMPC):
     ctrlrange`` as the bound), with IPOPT (interior point, bounded iterations, warm-started) in place of the SQP:
     the convexified SQP stopped in local minima that let the acrobot fall. Defaults: ``dt`` 0.04 s, 75 steps (3 s);
     at 1.2 s the optimal plans fall slowly past the horizon's end and it held none of 8 perturbed starts.
+
+    ``cold_guess``: IPOPT's starting point when there is no previous plan to shift (an episode's first solve, or
+    after a failed one): ``hold`` the current state with zero torque, or ``swingup``: the energy swing-up's
+    (:class:`skills.swingup.AcrobotEnergySwingUp`) own rollout on the model over the horizon, a pumping plan. From
+    hanging, ``hold`` often ends in the local minimum with the lower link up and the upper one hanging; the pumping
+    guess leads IPOPT to whole swing-ups (alone, 10 episodes: 478 against 388 on seed 1's, 478 against 396 on seed
+    2's; the README's acrobot notes).
     """
 
     nlp_solver = "ipopt"
@@ -542,10 +549,18 @@ class AcrobotUprightMPC(UprightMPC):
         w_control: float = 0.01,
         w_terminal: float = 100.0,
         max_iter: int = 50,
+        cold_guess: str = "hold",
     ) -> None:
         super().__init__(model, dt, horizon, w_angle, w_velocity, w_control, w_terminal, max_iter)
         if self._nq != 2:
             raise ConfigError(f"AcrobotUprightMPC needs the acrobot's model, got one with {self._nq} joint")
+        if cold_guess not in ("hold", "swingup"):
+            raise ConfigError(f"cold_guess must be hold or swingup, got {cold_guess!r}")
+        self.cold_guess = cold_guess
+        if cold_guess == "swingup":
+            from skills.swingup import AcrobotEnergySwingUp
+
+            self._pump = AcrobotEnergySwingUp(model)
 
     def _solver_options(self) -> dict[str, Any]:
         return {
@@ -562,5 +577,14 @@ class AcrobotUprightMPC(UprightMPC):
         # cold start near upright: the state held with zero torque (the pendulum's pump-like guess leads IPOPT to
         # plans that fall)
         n = self.horizon
-        x0 = np.concatenate([np.tile(state, (n + 1, 1)).ravel(), np.zeros(n)])
+        if self.cold_guess == "hold":
+            x0 = np.concatenate([np.tile(state, (n + 1, 1)).ravel(), np.zeros(n)])
+            return x0, np.zeros(self._n_decision), np.zeros(self._n_constraints)
+        # the energy swing-up's own rollout on the model (RK4 at dt, control held per interval)
+        states, controls = [np.asarray(state, float)], []
+        for _ in range(n):
+            u = float(self._pump.act(states[-1]).action[0])
+            controls.append(u)
+            states.append(np.asarray(self.step(states[-1], u)).ravel())
+        x0 = np.concatenate([np.stack(states).ravel(), np.asarray(controls)])
         return x0, np.zeros(self._n_decision), np.zeros(self._n_constraints)
