@@ -103,6 +103,31 @@ def test_the_swingup_cold_guess_swings_up_and_holds_from_hanging() -> None:
     assert (tips < 0.1).any() and np.all(tips[-100:] < 0.05)
 
 
+def test_a_reguess_keeps_the_cheaper_of_the_warm_and_the_cold_plan() -> None:
+    """Two catches fed the same states: the one that re-solves from the cold guess at every solve proposes the plan of
+    lower cost, the warm plan itself when that one is cheaper (then the two continue identically)."""
+    env = envs.make("acrobot_swingup")
+    env.reset(seed=5)
+    warm = AcrobotUprightMPC(dt=0.04, horizon=40, max_iter=50, cold_guess="swingup")
+    both = AcrobotUprightMPC(dt=0.04, horizon=40, max_iter=50, cold_guess="swingup", reguess_every=1)
+    cold = AcrobotUprightMPC(dt=0.04, horizon=40, max_iter=50, cold_guess="swingup")
+    for skill in (warm, both, cold):
+        skill.reset(np.random.default_rng(0))
+    reguessed = []
+    for t in range(40):
+        state = filtered_state(env, warm.state_keys)
+        if t % 4 == 0:
+            a, b = warm.act(state), both.act(state)
+            cold.reset(np.random.default_rng(0))  # a fresh start at every solve
+            c = cold.act(state)
+            assert b.info["cost"] == pytest.approx(min(a.info["cost"], c.info["cost"]), rel=1e-9)
+            reguessed.append(b.info["reguessed"])
+            warm._warm, warm._plan, warm._plan_index = both._warm, both._plan, both._plan_index  # same history
+        env.step(b.action)
+    assert reguessed[0] == 0.0  # the first solve is already the cold one: its re-solve finds the same plan
+    assert 0.0 in reguessed[1:] and 1.0 in reguessed  # both branches taken on this start
+
+
 def test_bad_settings() -> None:
     with pytest.raises(ConfigError):
         AcrobotUprightMPC(model="pendulum_swingup")
@@ -112,6 +137,8 @@ def test_bad_settings() -> None:
         AcrobotUprightMPC(w_control=-1.0)
     with pytest.raises(ConfigError, match="cold_guess"):
         AcrobotUprightMPC(cold_guess="pump")
+    with pytest.raises(ConfigError, match="reguess_every"):
+        AcrobotUprightMPC(reguess_every=-1)
 
 
 def test_passes_check_skill(catch: AcrobotUprightMPC) -> None:
