@@ -581,12 +581,11 @@ class AcrobotUprightMPC(UprightMPC):
         kept = (self._warm, self._plan, self._plan_index)
         self._warm = None  # the next solve starts from the cold guess
         second = super().act(state)
-        if second.info["status"] == STATUS_OK and not second.info["cost"] >= first.info["cost"]:
-            return SkillOutput(second.action, {**second.info, "solve_ms": first.info["solve_ms"] + second.info[
-                "solve_ms"], "reguessed": 1.0})  # fmt: skip
+        solve_ms = first.info["solve_ms"] + second.info["solve_ms"]
+        if second.info["status"] == STATUS_OK and not second.info["cost"] >= first.info["cost"]:  # NaN: first failed
+            return SkillOutput(second.action, {**second.info, "solve_ms": solve_ms, "reguessed": 1.0})
         self._warm, self._plan, self._plan_index = kept
-        return SkillOutput(first.action, {**first.info, "solve_ms": first.info["solve_ms"] + second.info["solve_ms"],
-                                          "reguessed": 0.0})  # fmt: skip
+        return SkillOutput(first.action, {**first.info, "solve_ms": solve_ms, "reguessed": 0.0})
 
     def _solver_options(self) -> dict[str, Any]:
         return {
@@ -600,8 +599,8 @@ class AcrobotUprightMPC(UprightMPC):
     def _initial_guess(self, state: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         if self._warm is not None:
             return super()._initial_guess(state)
-        # cold start near upright: the state held with zero torque (the pendulum's pump-like guess leads IPOPT to
-        # plans that fall)
+        # cold start: the state held with zero torque (near upright; the pendulum's pump-like constant torque led
+        # IPOPT to plans that fall), or the energy swing-up's rollout (from far below)
         n = self.horizon
         if self.cold_guess == "hold":
             x0 = np.concatenate([np.tile(state, (n + 1, 1)).ravel(), np.zeros(n)])
