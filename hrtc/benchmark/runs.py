@@ -221,21 +221,18 @@ class _EvalCollector:
         self.curve["wall_seconds"].append(float(metrics["wall_seconds"]))
         true = metrics.get("true_episode_reward")
         self.curve["true_reward"].append(None if true is None else float(true))
-        self.curve["solve_reward"].append(confirm_solve(self.spec, self.curve, self._returns))
-        self.curve["true_solve_reward"].append(confirm_true_solve(self.spec, self.curve, self._true_returns))
+        self.curve["solve_reward"].append(confirm_solve(self.spec, self.curve, lambda s: self._episodes(s).returns))
+        self.curve["true_solve_reward"].append(
+            confirm_true_solve(self.spec, self.curve, lambda s: self._episodes(s).true_returns)
+        )
         (Path(self.spec.run_dir) / "curve.json").write_text(json.dumps(self.curve))
 
-    def _returns(self, seeds: list[int]) -> np.ndarray:
-        from hrtc.episodes import evaluate
-
-        t = self.trainer
-        return evaluate(t.policy, t.normalizer, t.eval_env, seeds, t.cfg.dist)
-
-    def _true_returns(self, seeds: list[int]) -> np.ndarray:
+    def _episodes(self, seeds: list[int]) -> Any:
+        """Returns and true returns of the trainer's current policy, one deterministic episode per seed."""
         from hrtc.episodes import evaluate_episodes
 
         t = self.trainer
-        return evaluate_episodes(t.policy, t.normalizer, t.eval_env, seeds, t.cfg.dist).true_returns
+        return evaluate_episodes(t.policy, t.normalizer, t.eval_env, seeds, t.cfg.dist)
 
     def close(self) -> None:
         pass
@@ -314,7 +311,7 @@ def _trainer_run(spec: RunSpec) -> dict[str, Any]:
 
     best = Path(spec.run_dir) / "checkpoints" / "best.pt"
     out: dict[str, Any] = {"curve": collector.curve, "train_sps": _median(collector.sps), "wall_before": wall_before}
-    out["final_returns"] = collector._returns(final_seeds(spec)).tolist() if spec.final_episodes else []
+    out["final_returns"] = collector._episodes(final_seeds(spec)).returns.tolist() if spec.final_episodes else []
     if spec.final_best and spec.final_episodes:
         out["best_returns"] = metrics.checkpoint_returns(best, final_seeds(spec)).tolist()
     if spec.export:
@@ -360,18 +357,9 @@ def confirm_solve(spec: RunSpec, curve: Mapping[str, list[Any]], returns_of: Any
     """The solve rule's mean over ``spec.solve_episodes`` episodes for the evaluation just appended to ``curve``:
     the evaluation's own mean when it already has that many episodes; computed (the remaining seeds) when it passes
     the screen and no earlier evaluation confirmed; else None."""
-    from hrtc.episodes import eval_seeds
-
     if not spec.confirms:
         return curve["episode_reward"][-1]
-    if any(v is not None and v >= spec.solve_threshold for v in curve["solve_reward"]):
-        return None  # solved already: later evaluations only watch for a collapse
-    screen = curve["episode_reward"][-1]
-    if screen < spec.solve_threshold:  # type: ignore[operator]
-        return None
-    rest = eval_seeds(spec.seed, spec.solve_episodes)[spec.eval_episodes :]
-    extra = returns_of(rest)
-    return float((screen * spec.eval_episodes + extra.sum()) / spec.solve_episodes)
+    return _screened_mean(spec, curve["episode_reward"][-1], curve["solve_reward"], spec.solve_episodes, returns_of)
 
 
 def confirm_true_solve(spec: RunSpec, curve: Mapping[str, list[Any]], true_returns_of: Any) -> float | None:
@@ -379,18 +367,24 @@ def confirm_true_solve(spec: RunSpec, curve: Mapping[str, list[Any]], true_retur
     tracks (its own ``eval_episodes`` and the rest, run now by ``true_returns_of(seeds)``) when its true mean reaches
     ``spec.solve_threshold`` and no earlier evaluation confirmed; else None. A screen that fails on all the tracks is
     kept too (below the threshold), so the report can say so."""
+    if spec.solve_threshold is None or spec.true_solve_episodes <= spec.eval_episodes:
+        return None
+    screen = curve["true_reward"][-1]
+    return _screened_mean(spec, screen, curve["true_solve_reward"], spec.true_solve_episodes, true_returns_of)
+
+
+def _screened_mean(spec: RunSpec, screen: float | None, confirmed: list[Any], total: int,
+                   returns_of: Any) -> float | None:  # fmt: skip
+    """The mean over ``total`` episodes of an evaluation whose ``screen`` (its own ``eval_episodes``' mean) reaches
+    the threshold, the other episodes run now by ``returns_of(seeds)``; None when it does not, or when an earlier
+    evaluation already ``confirmed`` (solved already: later evaluations only watch for a collapse)."""
     from hrtc.episodes import eval_seeds
 
-    n, threshold = spec.true_solve_episodes, spec.solve_threshold
-    if threshold is None or n <= spec.eval_episodes:
+    threshold = spec.solve_threshold
+    if any(v is not None and v >= threshold for v in confirmed) or screen is None or screen < threshold:  # type: ignore[operator]
         return None
-    if any(v is not None and v >= threshold for v in curve["true_solve_reward"]):
-        return None  # confirmed already
-    screen = curve["true_reward"][-1]
-    if screen is None or screen < threshold:
-        return None
-    extra = true_returns_of(eval_seeds(spec.seed, n)[spec.eval_episodes :])
-    return float((screen * spec.eval_episodes + np.sum(extra)) / n)
+    extra = returns_of(eval_seeds(spec.seed, total)[spec.eval_episodes :])
+    return float((screen * spec.eval_episodes + np.sum(extra)) / total)
 
 
 # --------------------------------------------------------------------------------------------------- stable-baselines3
