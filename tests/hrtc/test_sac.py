@@ -13,6 +13,7 @@ from hrtc.distributions import BetaDistribution
 from hrtc.learner import Step
 from hrtc.policy import ActorCritic
 from hrtc.sac import (
+    ActionMap,
     NStepAccumulator,
     ReplayBatch,
     ReplayBuffer,
@@ -349,3 +350,145 @@ def test_sac_meta_policy_learns_a_state_dependent_switch(tmp_path):
     train = pd.read_csv(tmp_path / "train.csv")
     assert {"losses/q_loss", "losses/temperature", "losses/entropy"} <= set(train.columns)
     assert train["losses/gradient_steps"].sum() > 0
+
+
+# ------------------------------------------------------------------------------------------ critics on the action
+class Homing:
+    """Proposes ``-gain * position``: a state-dependent proposal (a skill's state filter reads ``position``)."""
+
+    state_keys = ("position",)
+
+    def __init__(self, gain: float = 1.0) -> None:
+        self.gain = float(gain)
+
+    def reset(self, rng):
+        pass
+
+    def act(self, state):
+        from hrtc.skill import SkillOutput
+
+        return SkillOutput(np.array([-self.gain * float(state[0])]), {"status": 0.0})
+
+
+ACTION_SKILLS = {
+    **SWITCH_SKILLS,
+    "home": {"skill": {"_target_": "tests.hrtc.test_sac.Homing", "gain": 3.0}},
+    "hold": {"skill": {"_target_": "skills.static.StaticIntent", "action": [0.0]}},
+}
+
+
+@pytest.mark.parametrize(("mode", "margin"), [("sum", 0.25), ("sum", 0.0), ("convex", 0.25)])
+def test_the_action_map_is_the_action_the_composed_env_applies(mode, margin):
+    """For random Beta samples, ``ActionMap`` on the reset's ``next_proposals`` equals the action the real composed
+    env applies at the decision's first step (weights mapped onto [-m, 1 + m], clipped, blended, clipped to the
+    bounds), scaled from the bounds to [-1, 1]; and each step's ``next_proposals`` are what the next step blends."""
+    from hrtc.environments import make_env
+    from hrtc.policy import to_action
+
+    env = make_env(SWITCH_TASK, "hrtc", ACTION_SKILLS, mode, decision_every=1, weight_margin=margin)
+    action_map = ActionMap.of(env, "beta")
+    rng = np.random.default_rng(0)
+    for episode in range(20):
+        _, info = env.reset(seed=episode)
+        proposals = info["next_proposals"]
+        for _ in range(3):
+            u = rng.random(4)
+            _, _, _, _, step_info = env.step(to_action(u, env.action_space.low, env.action_space.high, "beta"))
+            np.testing.assert_array_equal(step_info["proposals"], proposals)
+            mapped = action_map(torch.as_tensor(u[None]), torch.as_tensor(proposals[None]))
+            np.testing.assert_allclose(mapped.numpy()[0], step_info["action"], atol=1e-12)  # bounds [-1, 1]: scale 1
+            proposals = step_info["next_proposals"]
+
+
+def test_through_the_action_a_weight_moves_the_critic_by_its_skills_proposal_and_an_idle_skill_not_at_all():
+    """d(action)/d(sample_k) = (high - low) * a_k / half-range (finite differences agree inside the bounds; the same
+    straight through beyond them), so the critic's gradient in the weight of a skill proposing 0 is exactly 0."""
+    action_map = ActionMap(np.full(3, -0.25), np.full(3, 1.25), np.array([-2.0]), np.array([2.0]))
+    proposals = torch.tensor([[[0.5], [-1.5], [0.0]]], dtype=torch.float64)
+    u = torch.tensor([[0.3, 0.4, 0.9]], dtype=torch.float64, requires_grad=True)
+    (grad,) = torch.autograd.grad(action_map(u, proposals).sum(), u)
+    np.testing.assert_allclose(grad.numpy()[0], 1.5 * proposals[0, :, 0].numpy() / 2.0)
+    h = 1e-6
+    for k in range(2):
+        step = torch.zeros_like(u)
+        step[0, k] = h
+        fd = (action_map(u + step, proposals) - action_map(u - step, proposals)).item() / (2 * h)
+        assert fd == pytest.approx(grad[0, k].item(), rel=1e-6)
+    saturated = torch.tensor([[0.99, 0.01, 0.5]], dtype=torch.float64, requires_grad=True)  # w past [0, 1]
+    (grad_beyond,) = torch.autograd.grad(action_map(saturated, proposals).sum(), saturated)
+    torch.testing.assert_close(grad_beyond, grad)
+    critics = TwinQ(2, 1, (16,)).double()
+    q = critics(torch.randn(1, 2, dtype=torch.float64), action_map(u, proposals)).sum()
+    (q_grad,) = torch.autograd.grad(q, u)
+    assert q_grad[0, 2].item() == 0.0 and q_grad[0, :2].abs().min().item() > 0.0
+
+
+def test_a_buffer_with_proposals_keeps_them_with_their_transitions_and_through_n_steps():
+    """The n-step accumulator hands on the first decision's proposals and the bootstrap state's; the buffer samples
+    whole rows, survives its state dict, and a buffer saved without proposals is one clear error."""
+    from hrtc.errors import CheckpointError
+
+    acc = NStepAccumulator(2, 0.5)
+    obs = lambda t: np.array([[t], [t + 100]], np.float32)  # noqa: E731
+    props = lambda t: np.array([[[t], [-t]], [[t + 100], [-t - 100]]], np.float32)  # noqa: E731  (N, K=2, A=1)
+    no, w = np.zeros(2, bool), np.zeros((2, 2), np.float32)
+    assert acc.push(obs(0), w, np.ones(2), obs(1), no, no, props(0), props(1)) is None
+    out = acc.push(obs(1), w, np.ones(2), obs(2), no, no, props(1), props(2))
+    assert len(out) == 8
+    np.testing.assert_array_equal(out[6], props(0)) and np.testing.assert_array_equal(out[7], props(2))
+    buffer = ReplayBuffer(3, 1, 2, (2, 1))
+    buffer.add(*out)
+    buffer.add(*acc.push(obs(2), w, np.ones(2), obs(3), no, np.ones(2, bool), props(2), props(3)))  # wraps around
+    batch = buffer.sample(500, torch.Generator().manual_seed(0))
+    torch.testing.assert_close(batch.proposals[:, 0, 0], batch.obs[:, 0])  # rows stay together
+    torch.testing.assert_close(batch.next_proposals[:, 1, 0], -batch.next_obs[:, 0])
+    restored = ReplayBuffer(3, 1, 2, (2, 1))
+    restored.load_state_dict(buffer.state_dict())
+    np.testing.assert_array_equal(np.sort(restored.proposals[:, 0, 0]), np.sort(buffer.proposals[:, 0, 0]))
+    with pytest.raises(CheckpointError, match="another sac.critic_input"):
+        ReplayBuffer(3, 1, 2, (2, 1)).load_state_dict(ReplayBuffer(3, 1, 2).state_dict())
+
+
+def test_critics_on_the_action_need_skills_and_a_known_input():
+    from hrtc.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="sac.critic_input must be 'weights' or 'action'"):
+        SACConfig(critic_input="blend")
+    with pytest.raises(ConfigError, match="sac.critic_input=action needs skills"):
+        SACLearner(ActorCritic(2, 2, "beta", (8,)), SACConfig(critic_input="action"), 0.9, torch.Generator())
+
+
+@pytest.mark.slow
+def test_sac_with_critics_on_the_action_learns_the_switch_from_the_real_trainer(tmp_path):
+    """``sac.critic_input=action`` through the real Trainer: the Beta means learn the state-dependent switch."""
+    cfg = RunConfig(
+        task=SWITCH_TASK, skills=SWITCH_SKILLS, learner="sac", seed=0, steps=5_000, num_envs=2, vector="sync",
+        eval_every=2_500, eval_episodes=10, progress=False, hidden=(32, 32),
+        sac=SACConfig(q_hidden=(64, 64), batch_size=64, learning_starts=200, gamma=0.9, learning_rate=1e-3,
+                      critic_input="action"),
+    )  # fmt: skip
+    trainer = Trainer(cfg, tmp_path)
+    trainer.train()
+    loaded = load_policy(tmp_path / "checkpoints" / "last.pt")
+    with torch.no_grad():
+        left_side = loaded.policy.distribution(torch.full((64, 1), -0.6)).mode().mean(0).numpy()
+        right_side = loaded.policy.distribution(torch.full((64, 1), 0.6)).mode().mean(0).numpy()
+    assert left_side[1] - left_side[0] > 0.4 and right_side[0] - right_side[1] > 0.4
+    evals = pd.read_csv(tmp_path / "eval.csv")
+    assert evals["episode_reward"].iloc[-1] > evals["episode_reward"].iloc[0] + 1.0
+
+
+def test_the_real_trainer_stores_each_decisions_proposals_for_its_two_states(tmp_path):
+    """With ``sac.critic_input=action`` (two envs, episodes ending on time limits), every stored transition holds the
+    skills' own proposals at its state and at the state it bootstraps from (the homing skill's is ``-3 x``)."""
+    sac = SACConfig(q_hidden=(8,), batch_size=16, learning_starts=50, critic_input="action")
+    home = RunConfig(task=SWITCH_TASK, skills=ACTION_SKILLS, learner="sac", seed=0, steps=1_000, num_envs=2,
+                     vector="sync", eval_every=10_000, progress=False, hidden=(8,), sac=sac)  # fmt: skip
+    trainer = Trainer(home, tmp_path)
+    trainer.train()
+    buffer = trainer.learner.buffer
+    n = len(buffer)
+    assert n >= 150
+    np.testing.assert_allclose(buffer.proposals[:n, 2, 0], -3 * buffer.obs[:n, 0], atol=1e-5)
+    np.testing.assert_allclose(buffer.next_proposals[:n, 2, 0], -3 * buffer.next_obs[:n, 0], atol=1e-5)
+    np.testing.assert_array_equal(buffer.proposals[:n, :2, 0], np.tile([-1.0, 1.0], (n, 1)))
