@@ -48,9 +48,11 @@ class SACConfig:
     critic_grad_penalty: float = 0.0  # lambda: the critics' loss adds lambda * E ||d(sum_i Q_i) / dw||^2 (stored w)
     critic_grad_penalty_start: int = 0  # decisions (summed over envs) observed before the penalty applies
     critic_input: str = "weights"  # what the critics judge besides the state: the "weights" or the applied "action"
+    noise_color: float = 0.0  # exploration: 0 draws each decision's sample afresh; > 0 correlates them in time (1/f^c)
+    noise_length: int = 200  # decisions per colored-noise sequence (a cartpole episode at 20 Hz)
 
     def __post_init__(self) -> None:
-        for name in ("batch_size", "buffer_size", "log_every", "n_step", "n_critics"):
+        for name in ("batch_size", "buffer_size", "log_every", "n_step", "n_critics", "noise_length"):
             value = getattr(self, name)
             if not isinstance(value, int) or isinstance(value, bool) or value < 1:
                 raise ConfigError(f"sac.{name} must be a positive integer, got {value!r}")
@@ -74,6 +76,8 @@ class SACConfig:
             raise ConfigError(f"sac.critic_grad_penalty must be >= 0 and finite, got {self.critic_grad_penalty}")
         if self.critic_input not in ("weights", "action"):
             raise ConfigError(f"sac.critic_input must be 'weights' or 'action', got {self.critic_input!r}")
+        if not (np.isfinite(self.noise_color) and self.noise_color >= 0.0):
+            raise ConfigError(f"sac.noise_color must be >= 0 and finite, got {self.noise_color}")
         if self.actor_q not in ("min", "mean"):
             raise ConfigError(f"sac.actor_q must be 'min' or 'mean', got {self.actor_q!r}")
         if not self.q_hidden or any(int(h) < 1 for h in self.q_hidden):
@@ -208,6 +212,67 @@ class NStepAccumulator:
         self.pending = [[(item[0].numpy(), item[1].numpy(), float(item[2]),
                           item[3].numpy() if len(item) > 3 and item[3] is not None else None) for item in queue]
                         for queue in state.get("pending", [])]  # fmt: skip
+
+
+# --------------------------------------------------------------------------------------------------- exploration
+def powerlaw_noise(exponent: float, shape: tuple[int, ...], length: int, rng: np.random.Generator) -> np.ndarray:
+    """Gaussian sequences of ``length`` along the last axis whose power spectrum falls as ``1 / f**exponent``
+    (0: white, 1: pink, 2: red), each point standard normal (the DC term included in the scaling); (``*shape``,
+    ``length``). Frequencies below ``1 / length`` are cut off (Timmer and Koenig 1995's method, as the pink-noise
+    exploration of Eberhard et al. 2023 generates it)."""
+    f = np.fft.rfftfreq(length)
+    f[0] = 1.0 / length
+    scale = f ** (-exponent / 2.0)
+    variance = 2.0 * scale[0] ** 2 + 4.0 * np.sum(scale[1:] ** 2)  # of each point, times length**2
+    if length % 2 == 0:
+        variance -= 2.0 * scale[-1] ** 2  # the Nyquist term of an even length is real: counted once
+    sigma = np.sqrt(variance) / length
+    real = rng.standard_normal((*shape, len(f))) * scale
+    imag = rng.standard_normal((*shape, len(f))) * scale
+    if length % 2 == 0:
+        imag[..., -1] = 0.0
+        real[..., -1] *= np.sqrt(2.0)
+    imag[..., 0] = 0.0
+    real[..., 0] *= np.sqrt(2.0)
+    return np.fft.irfft(real + 1j * imag, n=length, axis=-1) / sigma
+
+
+class ColoredNoise:
+    """Per env, K uniform streams in (0, 1) correlated in time: ``Phi`` of power-law Gaussian sequences, so that
+    ``distribution.quantile(next())`` is a sample of the policy itself at every decision (the same marginal) whose
+    deviations persist across decisions. An env's sequence restarts when its episode ends or runs out."""
+
+    def __init__(self, exponent: float, dim: int, length: int, rng: np.random.Generator) -> None:
+        self.exponent, self.dim, self.length, self.rng = float(exponent), int(dim), int(length), rng
+        self.sequences = np.zeros((0, dim, length))
+        self.position = np.zeros(0, np.int64)
+
+    def next(self, n: int) -> np.ndarray:
+        """The next (n, K) uniforms of envs 0..n-1."""
+        if len(self.position) < n:
+            grow = n - len(self.position)
+            self.sequences = np.concatenate([self.sequences, np.zeros((grow, self.dim, self.length))])
+            self.position = np.concatenate([self.position, np.full(grow, self.length)])
+        for i in np.flatnonzero(self.position[:n] >= self.length):
+            self.sequences[i] = powerlaw_noise(self.exponent, (self.dim,), self.length, self.rng)
+            self.position[i] = 0
+        from scipy.special import ndtr
+
+        out = ndtr(self.sequences[np.arange(n), :, self.position[:n]])
+        self.position[:n] += 1
+        return np.clip(out, 1e-9, 1.0 - 1e-9)
+
+    def restart(self, ended: np.ndarray) -> None:
+        """A fresh sequence for the envs whose episodes ``ended`` (N,) bool."""
+        self.position[np.flatnonzero(ended[: len(self.position)])] = self.length
+
+    def state_dict(self) -> dict[str, Any]:
+        return {"sequences": torch.from_numpy(self.sequences.copy()), "position": torch.from_numpy(self.position),
+                "rng": self.rng.bit_generator.state}  # fmt: skip
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.sequences, self.position = state["sequences"].numpy().copy(), state["position"].numpy().copy()
+        self.rng.bit_generator.state = state["rng"]
 
 
 # --------------------------------------------------------------------------------------------------- networks
@@ -392,6 +457,10 @@ class SACLearner:
         self.temperature_optimizer = torch.optim.Adam([self.log_temperature], lr=cfg.learning_rate)
         self.target_entropy = cfg.target_entropy_per_weight * k
         self.buffer = ReplayBuffer(cfg.buffer_size, obs_dim, k, proposal_shape)
+        self.noise = None  # the Beta's own independent samples
+        if cfg.noise_color > 0:
+            seed = int(torch.randint(0, 2**31 - 1, (1,), generator=generator))
+            self.noise = ColoredNoise(cfg.noise_color, k, cfg.noise_length, np.random.default_rng(seed))
         self.accumulator = NStepAccumulator(cfg.n_step, gamma)
         self.decisions, self.gradient_steps = 0, 0
         self._credit = 0.0  # gradient steps owed to the decisions observed
@@ -402,7 +471,9 @@ class SACLearner:
     @torch.no_grad()
     def act(self, obs: np.ndarray) -> tuple[np.ndarray, object]:
         distribution = self.policy.distribution(torch.as_tensor(obs))
-        return distribution.sample().numpy(), distribution
+        if self.noise is None:
+            return distribution.sample().numpy(), distribution
+        return distribution.quantile(self.noise.next(len(obs))), distribution
 
     def observe(self, step: Any) -> None:
         proposals = (step.proposals, step.next_proposals) if self.action_map is not None else (None, None)
@@ -411,6 +482,8 @@ class SACLearner:
         if completed is not None:
             self.buffer.add(*completed)
         n = len(step.rewards)
+        if self.noise is not None:
+            self.noise.restart(np.asarray(step.terminated) | np.asarray(step.truncated))
         self.decisions += n
         self._since_row += n
         if self.decisions >= self.cfg.learning_starts:
@@ -476,6 +549,7 @@ class SACLearner:
             "log_temperature": self.log_temperature.detach().clone(),
             "temperature_optimizer": self.temperature_optimizer.state_dict(),
             "buffer": self.buffer.state_dict(), "n_step": self.accumulator.state_dict(),
+            "noise": self.noise.state_dict() if self.noise is not None else {},
             "counters": {"decisions": self.decisions, "gradient_steps": self.gradient_steps, "credit": self._credit,
                          "since_row": self._since_row},
         }  # fmt: skip
@@ -489,6 +563,8 @@ class SACLearner:
         if np.isnan(self.buffer.discount[: self.buffer.size]).any():  # an old buffer: one decision each
             self.buffer.discount[: self.buffer.size] = self.gamma
         self.accumulator.load_state_dict(state.get("n_step", {}))
+        if self.noise is not None and state.get("noise"):
+            self.noise.load_state_dict(state["noise"])
         counters = state["counters"]
         self.decisions, self.gradient_steps = int(counters["decisions"]), int(counters["gradient_steps"])
         self._credit, self._since_row = float(counters["credit"]), int(counters["since_row"])

@@ -9,7 +9,7 @@ import torch
 import envs
 from hrtc.checkpoint import load_policy
 from hrtc.config import RunConfig
-from hrtc.distributions import BetaDistribution
+from hrtc.distributions import BetaDistribution, NormalDistribution
 from hrtc.learner import Step
 from hrtc.policy import ActorCritic
 from hrtc.sac import (
@@ -492,3 +492,68 @@ def test_the_real_trainer_stores_each_decisions_proposals_for_its_two_states(tmp
     np.testing.assert_allclose(buffer.proposals[:n, 2, 0], -3 * buffer.obs[:n, 0], atol=1e-5)
     np.testing.assert_allclose(buffer.next_proposals[:n, 2, 0], -3 * buffer.next_obs[:n, 0], atol=1e-5)
     np.testing.assert_array_equal(buffer.proposals[:n, :2, 0], np.tile([-1.0, 1.0], (n, 1)))
+
+
+# --------------------------------------------------------------------------------------------------- colored noise
+@pytest.mark.parametrize("length", [200, 201])
+def test_powerlaw_noise_is_standard_normal_per_point_with_the_asked_spectrum(length):
+    """Each point has unit variance for every exponent; white noise is uncorrelated in time, pink (1) and red (2)
+    increasingly correlated; the averaged periodogram falls with the asked slope in log-log."""
+    from hrtc.sac import powerlaw_noise
+
+    rng = np.random.default_rng(0)
+    lag1 = {}
+    for exponent in (0.0, 1.0, 2.0):
+        x = powerlaw_noise(exponent, (4000,), length, rng)
+        assert x.shape == (4000, length)
+        assert x.std(axis=0).mean() == pytest.approx(1.0, abs=0.03)
+        lag1[exponent] = np.corrcoef(x[:, :-1].ravel(), x[:, 1:].ravel())[0, 1]
+        power = (np.abs(np.fft.rfft(x, axis=-1)) ** 2).mean(0)[1:-1]
+        f = np.fft.rfftfreq(length)[1:-1]
+        slope = np.polyfit(np.log(f), np.log(power), 1)[0]
+        assert slope == pytest.approx(-exponent, abs=0.1)
+    assert abs(lag1[0.0]) < 0.01 and 0.6 < lag1[1.0] < 0.8 and lag1[2.0] > 0.95
+
+
+def test_colored_exploration_keeps_the_policys_marginal_and_correlates_successive_decisions():
+    """``quantile`` of the colored uniforms is distributed as the Beta itself (Kolmogorov-Smirnov against its CDF)
+    while successive decisions of one env are correlated; an ended episode restarts its env's sequence, and the
+    noise resumes exactly from the learner's state dict."""
+    from scipy import stats
+
+    from hrtc.sac import ColoredNoise
+
+    alpha, beta = torch.full((1, 2), 2.0), torch.full((1, 2), 5.0)
+    dist = BetaDistribution(alpha.expand(3, 2), beta.expand(3, 2))
+    noise = ColoredNoise(1.0, 2, 50, np.random.default_rng(0))
+    draws = np.stack([dist.quantile(noise.next(3)) for _ in range(2000)])  # (T, 3 envs, 2)
+    assert stats.kstest(draws.ravel(), stats.beta(2.0, 5.0).cdf).pvalue > 0.01
+    assert np.corrcoef(draws[:-1, 0, 0], draws[1:, 0, 0])[0, 1] > 0.5
+    u = np.random.default_rng(1).random((3, 2))
+    np.testing.assert_allclose(stats.beta(2.0, 5.0).cdf(dist.quantile(u)), u, rtol=1e-5)
+    normal = NormalDistribution(torch.zeros(3, 2), torch.full((3, 2), 2.0))
+    np.testing.assert_allclose(normal.quantile(np.full((3, 2), 0.975)), 2.0 * 1.959964, rtol=1e-5)
+    for _ in range(3):
+        noise.next(3)
+    before = noise.sequences.copy()
+    noise.restart(np.array([False, True, False]))
+    noise.next(3)
+    assert noise.position.tolist() == [4, 1, 4]  # env 1 starts a fresh sequence, the others go on
+    assert np.array_equal(noise.sequences[[0, 2]], before[[0, 2]]) and not np.allclose(noise.sequences[1], before[1])
+    policy = ActorCritic(2, 2, "beta", (8,))
+    cfg = SACConfig(noise_color=1.0, noise_length=20, q_hidden=(8,))
+    learner = SACLearner(policy, cfg, 0.9, torch.Generator().manual_seed(0))
+    obs = np.zeros((2, 2), np.float32)
+    for _ in range(7):
+        learner.act(obs)
+    twin = SACLearner(policy, cfg, 0.9, torch.Generator().manual_seed(5))
+    twin.load_state_dict(learner.state_dict())
+    np.testing.assert_array_equal(twin.act(obs)[0], learner.act(obs)[0])
+
+
+def test_white_exploration_draws_nothing_extra():
+    """``noise_color=0`` (the default) builds no noise process and leaves the learner's generator untouched."""
+    generator = torch.Generator().manual_seed(3)
+    learner = SACLearner(ActorCritic(2, 2, "beta", (8,)), SACConfig(q_hidden=(8,)), 0.9, generator)
+    assert learner.noise is None
+    assert torch.equal(generator.get_state(), torch.Generator().manual_seed(3).get_state())
