@@ -269,9 +269,7 @@ class ComposedEnv(gym.Wrapper):
     Each step: every skill proposes for the current state, the action filter blends the proposals with ``w``, the
     task steps with the blended action. ``info`` carries ``weights`` (K,), ``proposals`` (K, A), ``action`` (A,),
     ``env_steps`` and per-skill diagnostics under ``skills`` (those of the last env step, with ``fault`` 1 if the
-    skill faulted at any step of the decision), and ``next_proposals`` (K, A): the skills' proposals for the state
-    the next decision starts from (also in the reset info; on termination, the last step's), so that a learner can
-    judge a decision by the action it applies (``sac.critic_input=action``).
+    skill faulted at any step of the decision).
 
     ``diagnostics=False`` (the default) keeps ``info`` reproducible: the same seed and weights give the same ``info``,
     as gymnasium's and stable-baselines3's ``check_env`` require. ``diagnostics=True`` adds what is not reproducible:
@@ -325,8 +323,7 @@ class ComposedEnv(gym.Wrapper):
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         obs, info = self.env.reset(seed=seed, options=options)
         self.composition.reset(np.random.default_rng(seed) if seed is not None else self.env.np_random)
-        proposals, _ = self.composition.propose(self.env.unwrapped.skill_state)  # now: a misfit skill fails at reset
-        info = {**info, "next_proposals": proposals.copy()}
+        self.composition.propose(self.env.unwrapped.skill_state)  # now: a misfit skill fails at reset
         return obs, ({**info, **self.fault_counts()} if self.diagnostics else info)
 
     def step(self, weights: np.ndarray):
@@ -342,18 +339,15 @@ class ComposedEnv(gym.Wrapper):
             obs, reward, terminated, truncated, info = self.env.step(action.astype(np.float32))
             total += float(reward)
             true_total += float(info.get("true_reward", reward))
-            if terminated:
+            if terminated or truncated:
                 break
-            next_proposals, _ = self.composition.propose(state)  # the next step's now: the fault counts include them
-            if truncated:
-                break
+            self.composition.propose(state)  # the next step's proposals now: the fault counts below include them
         if "true_reward" in info:
             info["true_reward"] = true_total
         keep = (lambda key: True) if self.diagnostics else (lambda key: not key.endswith(TIMING_SUFFIX))
         info.update(
             weights=self.composition.weights.copy(),
             proposals=proposals,
-            next_proposals=(proposals if terminated else next_proposals).copy(),
             action=action,
             env_steps=self.composition.step,
             skills={

@@ -8,15 +8,14 @@ A *head* maps features to a distribution over a ``dim``-vector ``u``:
   log-probability is that of the unclipped sample, as in CleanRL and SB3.
 
 Every distribution answers ``sample``, ``rsample`` (reparameterised, for SAC), ``log_prob`` (summed over the ``dim``
-axis), ``entropy`` (summed), ``mode`` (the evaluation rule: the Beta *mean* alpha / (alpha + beta), the paper's
-exploitation rule; the Normal mean) and ``quantile`` (the inverse CDF, numpy: samples from given uniforms).
+axis), ``entropy`` (summed) and ``mode`` (the evaluation rule: the Beta *mean* alpha / (alpha + beta), the paper's
+exploitation rule; the Normal mean).
 """
 
 from __future__ import annotations
 
 from typing import Protocol
 
-import numpy as np
 import torch
 from torch import nn
 from torch.nn import functional as F
@@ -31,7 +30,6 @@ class WeightDistribution(Protocol):
     def log_prob(self, u: torch.Tensor) -> torch.Tensor: ...
     def entropy(self) -> torch.Tensor: ...
     def mode(self) -> torch.Tensor: ...
-    def quantile(self, q: np.ndarray) -> np.ndarray: ...
 
 
 class BetaDistribution:
@@ -57,14 +55,6 @@ class BetaDistribution:
     def mode(self) -> torch.Tensor:
         """The Beta mean alpha / (alpha + beta) (used at evaluation, as in the paper)."""
         return self.alpha / (self.alpha + self.beta)
-
-    def quantile(self, q: np.ndarray) -> np.ndarray:
-        """The inverse CDF at probabilities ``q`` (same shape): ``quantile(uniform)`` is a sample, and correlated
-        uniforms give correlated samples with the same marginal (``sac.noise_color``)."""
-        from scipy.special import betaincinv
-
-        u = betaincinv(self.alpha.detach().double().numpy(), self.beta.detach().double().numpy(), q)
-        return np.clip(u, BETA_EPS, 1.0 - BETA_EPS).astype(np.float32)
 
     @property
     def concentration(self) -> torch.Tensor:
@@ -94,12 +84,6 @@ class NormalDistribution:
 
     def mode(self) -> torch.Tensor:
         return self.mean
-
-    def quantile(self, q: np.ndarray) -> np.ndarray:
-        """The inverse CDF at probabilities ``q`` (see :meth:`BetaDistribution.quantile`)."""
-        from scipy.special import ndtri
-
-        return (self.mean.detach().numpy() + self.std.detach().numpy() * ndtri(q)).astype(np.float32)
 
 
 class BetaHead(nn.Module):

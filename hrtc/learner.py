@@ -22,9 +22,7 @@ from hrtc.distributions import WeightDistribution
 class Step(NamedTuple):
     """One vector-env step of N envs, as the policy saw it: ``obs`` (N, obs_dim) the decision's input, ``samples``
     (N, K) the policy's samples, ``rewards`` (N,) summed over the decision's env steps, ``next_obs`` (N, obs_dim) the
-    true successor (the final observation where an episode ended), ``terminated`` / ``truncated`` (N,) bool. For a
-    composed task, ``proposals`` (N, K, A) are the skills' proposals for ``obs``'s state (what the weights blended at
-    the decision's first env step) and ``next_proposals`` (N, K, A) theirs for ``next_obs``'s; None otherwise."""
+    true successor (the final observation where an episode ended), ``terminated`` / ``truncated`` (N,) bool."""
 
     obs: np.ndarray
     samples: np.ndarray
@@ -32,8 +30,6 @@ class Step(NamedTuple):
     next_obs: np.ndarray
     terminated: np.ndarray
     truncated: np.ndarray
-    proposals: np.ndarray | None = None
-    next_proposals: np.ndarray | None = None
 
 
 class Learner(Protocol):
@@ -67,15 +63,14 @@ class Learner(Protocol):
 
 
 def build_learner(name: str, settings: Any, policy: Any, num_envs: int, total_steps: int, steps_per_decision: int,
-                  generator: Any, action_map: Any = None) -> Learner:  # fmt: skip
+                  generator: Any) -> Learner:  # fmt: skip
     """Learner ``name`` (``ppo`` or ``sac``) with its ``settings`` block for ``policy``, on ``num_envs`` envs for a
-    run of ``total_steps`` env steps; it discounts per decision (``gamma ** steps_per_decision``). ``action_map``
-    (a :class:`hrtc.sac.ActionMap`, composed tasks only): how weights and proposals make the applied action."""
+    run of ``total_steps`` env steps; it discounts per decision (``gamma ** steps_per_decision``)."""
     from hrtc.ppo import PPOLearner
     from hrtc.sac import SACLearner
 
     gamma = settings.gamma**steps_per_decision
     if name == "sac":
-        return SACLearner(policy, settings, gamma, generator, action_map)
+        return SACLearner(policy, settings, gamma, generator)
     num_updates = -(-total_steps // (settings.num_steps * num_envs * steps_per_decision))
     return PPOLearner(policy, settings, num_envs, gamma, num_updates, generator)

@@ -14,7 +14,7 @@ averaging) and the buffer.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
@@ -23,7 +23,7 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from hrtc.errors import CheckpointError, ConfigError
+from hrtc.errors import ConfigError
 
 
 @dataclass(frozen=True)
@@ -47,12 +47,9 @@ class SACConfig:
     actor_q: str = "min"  # what the actor maximises: "min" over all N critics (SAC's) or their "mean" (REDQ's)
     critic_grad_penalty: float = 0.0  # lambda: the critics' loss adds lambda * E ||d(sum_i Q_i) / dw||^2 (stored w)
     critic_grad_penalty_start: int = 0  # decisions (summed over envs) observed before the penalty applies
-    critic_input: str = "weights"  # what the critics judge besides the state: the "weights" or the applied "action"
-    noise_color: float = 0.0  # exploration: 0 draws each decision's sample afresh; > 0 correlates them in time (1/f^c)
-    noise_length: int = 200  # decisions per colored-noise sequence (a cartpole episode at 20 Hz)
 
     def __post_init__(self) -> None:
-        for name in ("batch_size", "buffer_size", "log_every", "n_step", "n_critics", "noise_length"):
+        for name in ("batch_size", "buffer_size", "log_every", "n_step", "n_critics"):
             value = getattr(self, name)
             if not isinstance(value, int) or isinstance(value, bool) or value < 1:
                 raise ConfigError(f"sac.{name} must be a positive integer, got {value!r}")
@@ -74,10 +71,6 @@ class SACConfig:
             raise ConfigError(f"sac.n_critics must be at least 2 (a target is the min of a pair), got {self.n_critics}")
         if not (np.isfinite(self.critic_grad_penalty) and self.critic_grad_penalty >= 0.0):
             raise ConfigError(f"sac.critic_grad_penalty must be >= 0 and finite, got {self.critic_grad_penalty}")
-        if self.critic_input not in ("weights", "action"):
-            raise ConfigError(f"sac.critic_input must be 'weights' or 'action', got {self.critic_input!r}")
-        if not (np.isfinite(self.noise_color) and self.noise_color >= 0.0):
-            raise ConfigError(f"sac.noise_color must be >= 0 and finite, got {self.noise_color}")
         if self.actor_q not in ("min", "mean"):
             raise ConfigError(f"sac.actor_q must be 'min' or 'mean', got {self.actor_q!r}")
         if not self.q_hidden or any(int(h) < 1 for h in self.q_hidden):
@@ -89,8 +82,7 @@ class ReplayBatch(NamedTuple):
     """Transitions ``(s, w, r, s', terminated, discount)``: obs (B, obs_dim), samples (B, K), rewards (B,) (the
     discounted sum over up to ``n_step`` decisions), next_obs (B, obs_dim) the state bootstrapped from, terminated (B,)
     as floats (1 where s' is terminal: nothing is bootstrapped from it; a time limit is not), discount (B,) the factor
-    of the bootstrap (gamma to the number of decisions summed); for a buffer that keeps them, the skills' proposals
-    (B, K, A) for s and for s' (else None)."""
+    of the bootstrap (gamma to the number of decisions summed)."""
 
     obs: torch.Tensor
     samples: torch.Tensor
@@ -98,16 +90,12 @@ class ReplayBatch(NamedTuple):
     next_obs: torch.Tensor
     terminated: torch.Tensor
     discount: torch.Tensor
-    proposals: torch.Tensor | None = None
-    next_proposals: torch.Tensor | None = None
 
 
 class ReplayBuffer:
-    """A ring buffer of transitions in preallocated float32 arrays; the oldest is overwritten when full.
-    ``proposal_shape`` (K, A): it also keeps the skills' proposals for each transition's two states."""
+    """A ring buffer of transitions in preallocated float32 arrays; the oldest is overwritten when full."""
 
-    def __init__(self, capacity: int, obs_dim: int, sample_dim: int,
-                 proposal_shape: tuple[int, int] | None = None) -> None:  # fmt: skip
+    def __init__(self, capacity: int, obs_dim: int, sample_dim: int) -> None:
         self.capacity = int(capacity)
         self.obs = np.zeros((capacity, obs_dim), np.float32)
         self.next_obs = np.zeros((capacity, obs_dim), np.float32)
@@ -115,40 +103,32 @@ class ReplayBuffer:
         self.rewards = np.zeros(capacity, np.float32)
         self.terminated = np.zeros(capacity, np.float32)
         self.discount = np.zeros(capacity, np.float32)
-        self.fields = _FIELDS
-        if proposal_shape is not None:
-            self.proposals = np.zeros((capacity, *proposal_shape), np.float32)
-            self.next_proposals = np.zeros((capacity, *proposal_shape), np.float32)
-            self.fields = _FIELDS + _PROPOSAL_FIELDS
         self.position, self.size = 0, 0
 
     def __len__(self) -> int:
         return self.size
 
     def add(self, obs: np.ndarray, samples: np.ndarray, rewards: np.ndarray, next_obs: np.ndarray,
-            terminated: np.ndarray, discount: np.ndarray, proposals: np.ndarray | None = None,
-            next_proposals: np.ndarray | None = None) -> None:  # fmt: skip
-        """Append a batch of N transitions (leading axis N on every argument; the proposals where kept)."""
+            terminated: np.ndarray, discount: np.ndarray) -> None:  # fmt: skip
+        """Append a batch of N transitions (leading axis N on every argument)."""
         n = len(rewards)
         idx = (self.position + np.arange(n)) % self.capacity
         self.obs[idx], self.samples[idx], self.rewards[idx] = obs, samples, rewards
         self.next_obs[idx], self.terminated[idx], self.discount[idx] = next_obs, terminated, discount
-        if len(self.fields) > len(_FIELDS):
-            if proposals is None or next_proposals is None:
-                raise ValueError("this buffer keeps the skills' proposals: add() needs proposals and next_proposals")
-            self.proposals[idx], self.next_proposals[idx] = proposals, next_proposals
         self.position = int((self.position + n) % self.capacity)
         self.size = min(self.size + n, self.capacity)
 
     def sample(self, batch_size: int, generator: torch.Generator) -> ReplayBatch:
         """``batch_size`` transitions drawn uniformly with replacement from what the buffer holds."""
         idx = torch.randint(0, self.size, (batch_size,), generator=generator).numpy()
-        return ReplayBatch(*(torch.from_numpy(getattr(self, k)[idx]) for k in self.fields))
+        return ReplayBatch(*(torch.from_numpy(a[idx]) for a in (self.obs, self.samples, self.rewards, self.next_obs,
+                                                                 self.terminated, self.discount)))  # fmt: skip
 
     def state_dict(self) -> dict[str, torch.Tensor | int]:
         """The filled part in chronological order (oldest first), as tensors (``weights_only`` loads them)."""
         order = (np.arange(self.size) + (self.position if self.size == self.capacity else 0)) % self.capacity
-        arrays = {k: torch.from_numpy(getattr(self, k)[order].copy()) for k in self.fields}
+        arrays = {k: torch.from_numpy(getattr(self, k)[order].copy())
+                  for k in _FIELDS}  # fmt: skip
         return {**arrays, "capacity": self.capacity}
 
     def load_state_dict(self, state: dict) -> None:
@@ -157,16 +137,10 @@ class ReplayBuffer:
         keep = slice(max(0, n - self.capacity), n)  # a smaller buffer keeps the newest
         if "discount" not in state:  # saved before n-step targets: every transition was one decision
             state = {**state, "discount": torch.full_like(state["rewards"], float("nan"))}
-        missing = [k for k in self.fields if k not in state]
-        if missing:
-            raise CheckpointError(
-                f"the saved replay buffer has no {missing}: it was saved with another sac.critic_input"
-            )
-        self.add(*(np.asarray(state[k][keep].numpy()) for k in self.fields))
+        self.add(*(np.asarray(state[k][keep].numpy()) for k in _FIELDS))
 
 
 _FIELDS = ("obs", "samples", "rewards", "next_obs", "terminated", "discount")
-_PROPOSAL_FIELDS = ("proposals", "next_proposals")
 
 
 class NStepAccumulator:
@@ -174,105 +148,35 @@ class NStepAccumulator:
     state ``n`` decisions later (sooner where the episode ended: its final state, bootstrapped unless terminal).
 
     ``push`` takes one vector step and returns the transitions it completes (the oldest pending decision of every env
-    that now has ``n``, and all of an env whose episode ended), as arrays for :meth:`ReplayBuffer.add`; with the
-    skills' ``proposals`` and ``next_proposals`` given, the transitions carry those of their first and their bootstrap
-    state."""
+    that now has ``n``, and all of an env whose episode ended), as arrays for :meth:`ReplayBuffer.add`."""
 
     def __init__(self, n: int, gamma: float) -> None:
         self.n, self.gamma = int(n), float(gamma)
-        self.pending: list[list[tuple[np.ndarray, np.ndarray, float, np.ndarray | None]]] = []
+        self.pending: list[list[tuple[np.ndarray, np.ndarray, float]]] = []
 
     def push(self, obs: np.ndarray, samples: np.ndarray, rewards: np.ndarray, next_obs: np.ndarray,
-             terminated: np.ndarray, truncated: np.ndarray, proposals: np.ndarray | None = None,
-             next_proposals: np.ndarray | None = None) -> tuple[np.ndarray, ...] | None:  # fmt: skip
+             terminated: np.ndarray, truncated: np.ndarray) -> tuple[np.ndarray, ...] | None:  # fmt: skip
         while len(self.pending) < len(rewards):
             self.pending.append([])
         out: list[tuple] = []
         for i, queue in enumerate(self.pending[: len(rewards)]):
-            queue.append((obs[i], samples[i], float(rewards[i]), None if proposals is None else proposals[i]))
+            queue.append((obs[i], samples[i], float(rewards[i])))
             ended = bool(terminated[i] or truncated[i])
             while queue and (len(queue) == self.n or ended):
-                ret = sum(self.gamma**j * r for j, (_, _, r, _) in enumerate(queue))
-                first = queue.pop(0)
-                out.append((first[0], first[1], ret, next_obs[i], float(terminated[i]), self.gamma ** (len(queue) + 1),
-                            first[3], None if next_proposals is None else next_proposals[i]))  # fmt: skip
+                ret = sum(self.gamma**j * r for j, (_, _, r) in enumerate(queue))
+                out.append((queue[0][0], queue[0][1], ret, next_obs[i], float(terminated[i]),
+                            self.gamma ** len(queue)))  # fmt: skip
+                queue.pop(0)
         if not out:
             return None
-        width = 8 if proposals is not None else 6
-        return tuple(np.asarray([t[j] for t in out], np.float32) for j in range(width))
+        return tuple(np.asarray([t[j] for t in out], np.float32) for j in range(6))
 
     def state_dict(self) -> dict[str, Any]:
-        def tensor(x: np.ndarray | None) -> torch.Tensor | None:
-            return None if x is None else torch.from_numpy(np.asarray(x, np.float32))
-
-        return {"pending": [[(tensor(o), tensor(w), r, tensor(p)) for o, w, r, p in queue]
-                            for queue in self.pending]}  # fmt: skip
+        return {"pending": [[(torch.from_numpy(np.asarray(o, np.float32)), torch.from_numpy(np.asarray(w, np.float32)),
+                              r) for o, w, r in queue] for queue in self.pending]}  # fmt: skip
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
-        self.pending = [[(item[0].numpy(), item[1].numpy(), float(item[2]),
-                          item[3].numpy() if len(item) > 3 and item[3] is not None else None) for item in queue]
-                        for queue in state.get("pending", [])]  # fmt: skip
-
-
-# --------------------------------------------------------------------------------------------------- exploration
-def powerlaw_noise(exponent: float, shape: tuple[int, ...], length: int, rng: np.random.Generator) -> np.ndarray:
-    """Gaussian sequences of ``length`` along the last axis whose power spectrum falls as ``1 / f**exponent``
-    (0: white, 1: pink, 2: red), each point standard normal (the DC term included in the scaling); (``*shape``,
-    ``length``). Frequencies below ``1 / length`` are cut off (Timmer and Koenig 1995's method, as the pink-noise
-    exploration of Eberhard et al. 2023 generates it)."""
-    f = np.fft.rfftfreq(length)
-    f[0] = 1.0 / length
-    scale = f ** (-exponent / 2.0)
-    variance = 2.0 * scale[0] ** 2 + 4.0 * np.sum(scale[1:] ** 2)  # of each point, times length**2
-    if length % 2 == 0:
-        variance -= 2.0 * scale[-1] ** 2  # the Nyquist term of an even length is real: counted once
-    sigma = np.sqrt(variance) / length
-    real = rng.standard_normal((*shape, len(f))) * scale
-    imag = rng.standard_normal((*shape, len(f))) * scale
-    if length % 2 == 0:
-        imag[..., -1] = 0.0
-        real[..., -1] *= np.sqrt(2.0)
-    imag[..., 0] = 0.0
-    real[..., 0] *= np.sqrt(2.0)
-    return np.fft.irfft(real + 1j * imag, n=length, axis=-1) / sigma
-
-
-class ColoredNoise:
-    """Per env, K uniform streams in (0, 1) correlated in time: ``Phi`` of power-law Gaussian sequences, so that
-    ``distribution.quantile(next())`` is a sample of the policy itself at every decision (the same marginal) whose
-    deviations persist across decisions. An env's sequence restarts when its episode ends or runs out."""
-
-    def __init__(self, exponent: float, dim: int, length: int, rng: np.random.Generator) -> None:
-        self.exponent, self.dim, self.length, self.rng = float(exponent), int(dim), int(length), rng
-        self.sequences = np.zeros((0, dim, length))
-        self.position = np.zeros(0, np.int64)
-
-    def next(self, n: int) -> np.ndarray:
-        """The next (n, K) uniforms of envs 0..n-1."""
-        if len(self.position) < n:
-            grow = n - len(self.position)
-            self.sequences = np.concatenate([self.sequences, np.zeros((grow, self.dim, self.length))])
-            self.position = np.concatenate([self.position, np.full(grow, self.length)])
-        for i in np.flatnonzero(self.position[:n] >= self.length):
-            self.sequences[i] = powerlaw_noise(self.exponent, (self.dim,), self.length, self.rng)
-            self.position[i] = 0
-        from scipy.special import ndtr
-
-        out = ndtr(self.sequences[np.arange(n), :, self.position[:n]])
-        self.position[:n] += 1
-        return np.clip(out, 1e-9, 1.0 - 1e-9)
-
-    def restart(self, ended: np.ndarray) -> None:
-        """A fresh sequence for the envs whose episodes ``ended`` (N,) bool."""
-        self.position[np.flatnonzero(ended[: len(self.position)])] = self.length
-
-    def state_dict(self) -> dict[str, Any]:
-        return {"sequences": torch.from_numpy(self.sequences.copy()), "position": torch.from_numpy(self.position),
-                "rng": self.rng.bit_generator.state}  # fmt: skip
-
-    def load_state_dict(self, state: dict[str, Any]) -> None:
-        self.sequences, self.position = state["sequences"].numpy().copy(), state["position"].numpy().copy()
-        self.rng.bit_generator.state = state["rng"]
+        self.pending = [[(o.numpy(), w.numpy(), float(r)) for o, w, r in queue] for queue in state.get("pending", [])]
 
 
 # --------------------------------------------------------------------------------------------------- networks
@@ -299,49 +203,6 @@ def _relu_mlp(in_dim: int, hidden: Sequence[int]) -> nn.Sequential:
 
 
 # --------------------------------------------------------------------------------------------------- the math
-def clip_straight_through(x: torch.Tensor, low: torch.Tensor | float, high: torch.Tensor | float) -> torch.Tensor:
-    """``x`` clipped to [low, high] in value, with the gradient of the identity (a straight-through estimator): a
-    weight or action past its bound still tells the actor which way the critic would move it."""
-    return x + (torch.clamp(x, low, high) - x).detach()
-
-
-@dataclass(frozen=True)
-class ActionMap:
-    """How the meta-policy's samples and the skills' proposals make the action a composed task applies, as a
-    differentiable torch function (``sac.critic_input=action``: the critics judge that action, the actor's gradient
-    reaches each weight through it, ``dQ/dw_k = dQ/da . a_k``, so a skill whose proposal is zero gets none).
-
-    ``sample_low`` / ``sample_high`` (K,): the composed env's weight space (a Beta sample ``u`` stands for
-    ``low + (high - low) u``; a Normal sample is clipped to it), then clipped to [0, 1] as the action filter does;
-    ``action_low`` / ``action_high`` (A,) the task's action bounds; ``mode`` the action filter's blend."""
-
-    sample_low: np.ndarray
-    sample_high: np.ndarray
-    action_low: np.ndarray
-    action_high: np.ndarray
-    mode: str = "sum"
-    dist: str = "beta"
-
-    @classmethod
-    def of(cls, env: Any, dist: str) -> ActionMap:
-        """The map of a :class:`~hrtc.composition.ComposedEnv` whose policy samples from ``dist``."""
-        f = env.action_filter
-        return cls(env.action_space.low, env.action_space.high, f.low, f.high, f.mode, dist)
-
-    def __call__(self, samples: torch.Tensor, proposals: torch.Tensor) -> torch.Tensor:
-        """(B, K) samples and (B, K, A) proposals -> (B, A) the applied action, scaled from its bounds to [-1, 1]."""
-        low, high = (torch.as_tensor(b, dtype=samples.dtype) for b in (self.sample_low, self.sample_high))
-        w = low + (high - low) * samples if self.dist == "beta" else clip_straight_through(samples, low, high)
-        w = clip_straight_through(w, 0.0, 1.0)
-        action = torch.einsum("bk,bka->ba", w, proposals)
-        if self.mode == "convex":
-            total = w.sum(-1, keepdim=True)
-            action = torch.where(total > 1e-8, action / total.clamp_min(1e-8), torch.zeros_like(action))
-        a_low, a_high = (torch.as_tensor(b, dtype=samples.dtype) for b in (self.action_low, self.action_high))
-        action = clip_straight_through(action, a_low, a_high)
-        return (action - (a_low + a_high) / 2) / ((a_high - a_low) / 2)
-
-
 def soft_q_target(rewards: torch.Tensor, terminated: torch.Tensor, next_q1: torch.Tensor, next_q2: torch.Tensor,
                   next_logp: torch.Tensor, temperature: float | torch.Tensor,
                   gamma: float | torch.Tensor) -> torch.Tensor:  # fmt: skip
@@ -371,9 +232,7 @@ def rsample_with_logp(distribution: object) -> tuple[torch.Tensor, torch.Tensor]
 
 def sac_losses(policy: nn.Module, critics: TwinQ, target_critics: TwinQ, batch: ReplayBatch,
                temperature: float | torch.Tensor, target_pair: tuple[int, int] = (0, 1), actor_q: str = "min",
-               grad_penalty: float = 0.0,
-               action_map: Callable[[torch.Tensor, torch.Tensor], torch.Tensor] | None = None,
-               ) -> dict[str, torch.Tensor]:  # fmt: skip
+               grad_penalty: float = 0.0) -> dict[str, torch.Tensor]:  # fmt: skip
     """The critics', actor's and master critic's losses on one minibatch, with the actor's log-probabilities.
 
     ``policy`` is an :class:`~hrtc.policy.ActorCritic` (``distribution(obs)``, ``value(obs)``). Every critic fits the
@@ -381,29 +240,23 @@ def sac_losses(policy: nn.Module, critics: TwinQ, target_critics: TwinQ, batch: 
     maximises ``Q(s, w) - temperature log pi(w | s)`` on fresh reparameterised weights, with Q the ``min`` or the
     ``mean`` over all critics (``actor_q``); V(s) fits that soft value. ``grad_penalty`` > 0 adds
     ``grad_penalty * E ||d(sum_i Q_i(s, w)) / dw||^2`` at the stored weights (the Beta samples) to the critics' loss:
-    the critics then keep a slope in a weight only where the returns ask for it. With ``action_map`` (an
-    :class:`ActionMap`) every critic reads the applied action ``action_map(w, proposals)`` instead of the weights (the
-    batch's proposals for s and s'). The caller must keep the actor loss's gradient out of the critics (see
-    :meth:`SACLearner._gradient_step`)."""
-
-    def judged(samples: torch.Tensor, proposals: torch.Tensor | None) -> torch.Tensor:
-        return samples if action_map is None else action_map(samples, proposals)  # type: ignore[arg-type]
-
+    the critics then keep a slope in a weight only where the returns ask for it. The caller must keep the actor loss's
+    gradient out of the critics (see :meth:`SACLearner._gradient_step`)."""
     with torch.no_grad():
         next_w, next_logp = rsample_with_logp(policy.distribution(batch.next_obs))
-        next_q = target_critics(batch.next_obs, judged(next_w, batch.next_proposals))
+        next_q = target_critics(batch.next_obs, next_w)
         i, j = target_pair
         target = soft_q_target(
             batch.rewards, batch.terminated, next_q[i], next_q[j], next_logp, temperature, batch.discount
         )
     samples = batch.samples.clone().requires_grad_(True) if grad_penalty > 0 else batch.samples
-    q_stored = critics(batch.obs, judged(samples, batch.proposals))
+    q_stored = critics(batch.obs, samples)
     q_loss = ((q_stored - target) ** 2).mean(-1).sum()
     if grad_penalty > 0:
         (slope,) = torch.autograd.grad(q_stored.sum(), samples, create_graph=True)  # (B, K): d(sum_i Q_i) / dw
         q_loss = q_loss + grad_penalty * (slope**2).sum(-1).mean()
     w, logp = rsample_with_logp(policy.distribution(batch.obs))
-    q_all = critics(batch.obs, judged(w, batch.proposals))
+    q_all = critics(batch.obs, w)
     q_pi = q_all.min(0).values if actor_q == "min" else q_all.mean(0)
     actor_loss = (temperature * logp - q_pi).mean()
     value_loss = F.mse_loss(policy.value(batch.obs), (q_pi - temperature * logp).detach())
@@ -429,38 +282,24 @@ class SACLearner:
         cfg: the SAC settings.
         gamma: the discount per decision (``cfg.gamma ** decision_every``).
         generator: draws the replay minibatches.
-        action_map: the composed task's :class:`ActionMap`; needed for ``cfg.critic_input == "action"``.
     """
 
     update_while_stepping = True
     columns = SAC_COLUMNS
 
-    def __init__(self, policy: nn.Module, cfg: SACConfig, gamma: float, generator: torch.Generator,
-                 action_map: ActionMap | None = None) -> None:  # fmt: skip
+    def __init__(self, policy: nn.Module, cfg: SACConfig, gamma: float, generator: torch.Generator) -> None:
         import copy
 
         self.policy, self.cfg, self.gamma, self.generator = policy, cfg, gamma, generator
         obs_dim, k = int(policy.obs_dim), int(policy.out_dim)
-        self.action_map = action_map if cfg.critic_input == "action" else None
-        proposal_shape = None
-        if cfg.critic_input == "action":
-            if action_map is None:
-                raise ConfigError("sac.critic_input=action needs skills to blend (algo=hrtc); flat RL's critics read "
-                                  "its action already (use sac.critic_input=weights)")  # fmt: skip
-            proposal_shape = (k, len(action_map.action_low))
-        judged_dim = k if proposal_shape is None else proposal_shape[1]
-        self.critics = TwinQ(obs_dim, judged_dim, cfg.q_hidden, n=cfg.n_critics)
+        self.critics = TwinQ(obs_dim, k, cfg.q_hidden, n=cfg.n_critics)
         self.target_critics = copy.deepcopy(self.critics).requires_grad_(False)
         self.q_optimizer = torch.optim.Adam(self.critics.parameters(), lr=cfg.learning_rate)
         self.actor_optimizer = torch.optim.Adam(policy.parameters(), lr=cfg.learning_rate)
         self.log_temperature = torch.tensor(float(np.log(cfg.init_temperature)), requires_grad=True)
         self.temperature_optimizer = torch.optim.Adam([self.log_temperature], lr=cfg.learning_rate)
         self.target_entropy = cfg.target_entropy_per_weight * k
-        self.buffer = ReplayBuffer(cfg.buffer_size, obs_dim, k, proposal_shape)
-        self.noise = None  # the Beta's own independent samples
-        if cfg.noise_color > 0:
-            seed = int(torch.randint(0, 2**31 - 1, (1,), generator=generator))
-            self.noise = ColoredNoise(cfg.noise_color, k, cfg.noise_length, np.random.default_rng(seed))
+        self.buffer = ReplayBuffer(cfg.buffer_size, obs_dim, k)
         self.accumulator = NStepAccumulator(cfg.n_step, gamma)
         self.decisions, self.gradient_steps = 0, 0
         self._credit = 0.0  # gradient steps owed to the decisions observed
@@ -471,19 +310,14 @@ class SACLearner:
     @torch.no_grad()
     def act(self, obs: np.ndarray) -> tuple[np.ndarray, object]:
         distribution = self.policy.distribution(torch.as_tensor(obs))
-        if self.noise is None:
-            return distribution.sample().numpy(), distribution
-        return distribution.quantile(self.noise.next(len(obs))), distribution
+        return distribution.sample().numpy(), distribution
 
     def observe(self, step: Any) -> None:
-        proposals = (step.proposals, step.next_proposals) if self.action_map is not None else (None, None)
         completed = self.accumulator.push(step.obs, step.samples, step.rewards, step.next_obs, step.terminated,
-                                          step.truncated, *proposals)  # fmt: skip
+                                          step.truncated)  # fmt: skip
         if completed is not None:
             self.buffer.add(*completed)
         n = len(step.rewards)
-        if self.noise is not None:
-            self.noise.restart(np.asarray(step.terminated) | np.asarray(step.truncated))
         self.decisions += n
         self._since_row += n
         if self.decisions >= self.cfg.learning_starts:
@@ -514,7 +348,7 @@ class SACLearner:
             pair = tuple(torch.randperm(self.cfg.n_critics, generator=self.generator)[:2].tolist())
         penalty = self.cfg.critic_grad_penalty if self.decisions >= self.cfg.critic_grad_penalty_start else 0.0
         losses = sac_losses(self.policy, self.critics, self.target_critics, batch, temperature, pair, self.cfg.actor_q,
-                            penalty, self.action_map)  # fmt: skip
+                            penalty)  # fmt: skip
         # Each backward pass accumulates into its own parameters only: the actor's loss never moves the critics.
         self.actor_optimizer.zero_grad()
         (losses["actor"] + losses["value"]).backward(inputs=list(self.policy.parameters()))
@@ -549,7 +383,6 @@ class SACLearner:
             "log_temperature": self.log_temperature.detach().clone(),
             "temperature_optimizer": self.temperature_optimizer.state_dict(),
             "buffer": self.buffer.state_dict(), "n_step": self.accumulator.state_dict(),
-            "noise": self.noise.state_dict() if self.noise is not None else {},
             "counters": {"decisions": self.decisions, "gradient_steps": self.gradient_steps, "credit": self._credit,
                          "since_row": self._since_row},
         }  # fmt: skip
@@ -563,8 +396,6 @@ class SACLearner:
         if np.isnan(self.buffer.discount[: self.buffer.size]).any():  # an old buffer: one decision each
             self.buffer.discount[: self.buffer.size] = self.gamma
         self.accumulator.load_state_dict(state.get("n_step", {}))
-        if self.noise is not None and state.get("noise"):
-            self.noise.load_state_dict(state["noise"])
         counters = state["counters"]
         self.decisions, self.gradient_steps = int(counters["decisions"]), int(counters["gradient_steps"])
         self._credit, self._since_row = float(counters["credit"]), int(counters["since_row"])

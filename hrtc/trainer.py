@@ -41,18 +41,8 @@ from hrtc.learner import Step, build_learner
 from hrtc.logging import CsvSink, Sink
 from hrtc.normalize import ObsNormalizer, RewardScaler, normalize_obs
 from hrtc.policy import build_policy, to_action
-from hrtc.sac import ActionMap
 
 log = logging.getLogger(__name__)
-
-
-def final_proposals(info: dict[str, Any], i: int) -> np.ndarray:
-    """The skills' proposals for env ``i``'s final state, from a same-step autoreset's ``info`` (its ``final_info``;
-    a replaced worker's final state has none: the fresh episode's stand in, a rare approximate bootstrap)."""
-    final = info.get("final_info", {})
-    if "next_proposals" in final and final.get("_next_proposals", np.ones(i + 1, bool))[i]:
-        return final["next_proposals"][i]
-    return info["next_proposals"][i]
 
 
 class Trainer:
@@ -80,10 +70,8 @@ class Trainer:
         self.policy = build_policy(obs_dim, space.low, space.high, cfg.dist, cfg.hidden, cfg.beta_init_bias,
                                    cfg.encoder, cfg.activation, cfg.weight_init, cfg.policy_device)  # fmt: skip
         self.steps_per_decision = cfg.steps_per_decision  # the learner discounts per decision accordingly
-        action_map = ActionMap.of(self.eval_env, cfg.dist) if self.skill_names else None
         self.learner = build_learner(cfg.learner, cfg.learner_settings, self.policy, cfg.num_envs, cfg.steps,
-                                     self.steps_per_decision, self.generator, action_map)  # fmt: skip
-        self.proposals: np.ndarray | None = None  # the skills' proposals for the training envs' observations
+                                     self.steps_per_decision, self.generator)  # fmt: skip
         self.normalizer = ObsNormalizer((obs_dim,)) if cfg.learner_settings.normalize_obs else None
         self.global_step, self.update, self.episodes = 0, 0, 0
         self.best_eval, self.last_eval = -np.inf, float("nan")
@@ -152,8 +140,7 @@ class Trainer:
         committed, interrupted, stop = (self.global_step, self.episodes), False, False
         try:
             # Training envs: seed + i on the first reset of this (or a resumed) run, continuing their own RNG after.
-            obs, info = vec.reset(seed=[cfg.seed * 1_000 + self.update * n + i for i in range(n)])
-            self.proposals = info.get("next_proposals")  # the skills' proposals for obs (composed tasks)
+            obs, _ = vec.reset(seed=[cfg.seed * 1_000 + self.update * n + i for i in range(n)])
             for callback in self.callbacks:
                 callback.on_start(self)
             while not stop and (self.global_step < cfg.steps or not learner.at_boundary):
@@ -195,17 +182,12 @@ class Trainer:
         ended = tuple(float(self.ep_return[i]) for i in np.flatnonzero(done))
         self.ep_return[done] = 0.0
         self.episodes += len(ended)
-        next_obs, proposals, next_proposals = obs, self.proposals, info.get("next_proposals")
+        next_obs = obs
         if done.any():  # the true successor of an ended episode is its final observation
             next_obs = obs.copy()
-            next_proposals = None if next_proposals is None else next_proposals.copy()
             for i in np.flatnonzero(done):
                 next_obs[i] = info["final_obs"][i]
-                if next_proposals is not None:
-                    next_proposals[i] = final_proposals(info, i)
-        self.proposals = info.get("next_proposals")
-        learner.observe(Step(nobs, samples, reward, normalize_obs(self.normalizer, next_obs), terminated, truncated,
-                             proposals, next_proposals))  # fmt: skip
+        learner.observe(Step(nobs, samples, reward, normalize_obs(self.normalizer, next_obs), terminated, truncated))
         step, self.global_step = self.global_step, self.global_step + self.cfg.num_envs * self.steps_per_decision
         if not learner.update_while_stepping:
             stats, after = timed(learner.update)
