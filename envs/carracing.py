@@ -19,6 +19,8 @@ from __future__ import annotations
 import math
 import os
 import time
+from collections.abc import Mapping
+from dataclasses import dataclass
 from typing import Any
 
 import gymnasium as gym
@@ -38,7 +40,8 @@ NO_PROGRESS_MEAN = -0.1  # ...and the mean at or below which it ends the episode
 GRASS_GREEN = 185.0  # a frame is "grass" when its green channel's mean exceeds this (0-255)
 SOLVE_RETURN = 900.0  # the return both solve rules ask for, averaged over 10 (the paper) or 100 (gym) tracks
 STATE_KEYS = ("speed", "forward_speed", "lateral_speed", "yaw_rate", "steering_angle", "heading", "position",
-              "wheels_on_road", "progress")  # fmt: skip
+              "wheels_on_road", "progress", "track_heading_error", "track_offset", "track_turn_ahead")  # fmt: skip
+TURN_AHEAD_POINTS = 12  # centre-line points (3.5 world units apart) over which track_turn_ahead measures the bend
 
 _HULL_RGB = tuple(float(int(c * 255)) for c in (0.8, 0.0, 0.0))  # Car.draw: [int(c * 255) for c in obj.color]
 _WHEEL_RGB = tuple(float(c) for c in cd.WHEEL_COLOR)
@@ -173,12 +176,18 @@ class FastCarRacing(cr.CarRacing):
         ``speed`` (1,) world units/s; ``forward_speed``, ``lateral_speed`` (1,) along the car's nose and to its
         right; ``yaw_rate`` (1,) rad/s, counter-clockwise; ``steering_angle`` (1,) rad of the front-left wheel,
         positive left; ``heading`` (1,) rad; ``position`` (2,) world units; ``wheels_on_road`` (1,) 0-4;
-        ``progress`` (1,) fraction of the track's tiles visited."""
+        ``progress`` (1,) fraction of the track's tiles visited. Relative to the track's centre line at its point
+        nearest the car (privileged: the frames show the road, not its centre line): ``track_heading_error`` (1,)
+        rad from the car's nose to the centre line's direction, counter-clockwise (positive: the road turns left of
+        the nose); ``track_offset`` (1,) world units, positive left of the centre line; ``track_turn_ahead`` (1,)
+        rad, the largest change of the centre line's direction over the next :data:`TURN_AHEAD_POINTS` points
+        (~42 world units; 0 on a straight)."""
         car = self.car
         if car is None:
             raise RuntimeError("skill_state() before reset()")
         vx, vy = car.hull.linearVelocity
         heading = float(car.hull.angle)
+        heading_error, offset, turn = self._track_relative(np.array(car.hull.position, dtype=np.float64), heading)
         forward = np.array([-math.sin(heading), math.cos(heading)])  # the car's nose points along local +y
         velocity = np.array([vx, vy], dtype=np.float64)
         return {
@@ -191,7 +200,27 @@ class FastCarRacing(cr.CarRacing):
             "position": np.array(car.hull.position, dtype=np.float64),
             "wheels_on_road": np.array([float(sum(1 for w in car.wheels if w.tiles))]),
             "progress": np.array([self.tile_visited_count / max(len(self.track), 1)]),
+            "track_heading_error": np.array([heading_error]),
+            "track_offset": np.array([offset]),
+            "track_turn_ahead": np.array([turn]),
         }
+
+    def _track_relative(self, position: np.ndarray, heading: float) -> tuple[float, float, float]:
+        """(heading error, offset, turn ahead) of the car against the centre line (see :meth:`skill_state`)."""
+        if getattr(self, "_centre_of", None) is not self.track:  # a new track each reset
+            centre = np.array([(t[2], t[3]) for t in self.track], dtype=np.float64)
+            steps = np.roll(centre, -1, axis=0) - centre  # the centre line runs in the direction the car drives
+            self._centre, self._centre_of = centre, self.track
+            self._direction = np.arctan2(steps[:, 1], steps[:, 0])
+        centre, direction = self._centre, self._direction
+        nearest = int(np.argmin(((centre - position) ** 2).sum(1)))
+        along = direction[nearest]
+        relative = position - centre[nearest]
+        offset = math.cos(along) * relative[1] - math.sin(along) * relative[0]
+        heading_error = _wrap(along - (heading + math.pi / 2))  # the nose points along the body's +y
+        ahead = direction[(nearest + np.arange(TURN_AHEAD_POINTS)) % len(direction)]
+        turn = float(np.max(np.abs(np.unwrap(ahead) - ahead[0])))
+        return heading_error, float(offset), turn
 
 
 class CarRacingTask(FastCarRacing):
@@ -326,6 +355,43 @@ class CarRacingTask(FastCarRacing):
             os.write(fd, line.encode())  # one write of a short line under O_APPEND: atomic across processes
         finally:
             os.close(fd)
+
+
+def _wrap(angle: float) -> float:
+    """``angle`` wrapped to [-pi, pi)."""
+    return (angle + math.pi) % (2 * math.pi) - math.pi
+
+
+@dataclass(frozen=True)
+class TrackFollowRule:
+    """The hand-written reference over carracing's five static intents (:mod:`hrtc.references`): steer along the
+    centre line, and gas on straights up to a speed that falls with the bend ahead. Privileged: it reads the track's
+    centre line (``track_*`` of :meth:`FastCarRacing.skill_state`), which the learners see only as pixels.
+
+    Steering (a Stanley controller, Thrun et al. 2006): ``u = gain * (heading_error - atan2(offset_gain * offset,
+    speed + 1) - yaw_damping * yaw_rate)``; ``turn_left`` weighs ``clip(u, 0, 1)``, ``turn_right`` ``clip(-u, 0, 1)``.
+    Speed: the target is ``top_speed / (1 + bend_slowdown * track_turn_ahead)``; ``accelerate`` is 1 below it while
+    ``|u| < gas_steer_limit`` (gas in a turn spins the rear-driven car out), ``decelerate`` 1 above it by more than
+    ``brake_margin``. ``hold`` stays 0. Defaults: tuned on tracks of seeds 1000-1005, by a random search over
+    ~135 settings (`benchmarks/results/carracing/table1/README.md`)."""
+
+    gain: float = 0.65
+    offset_gain: float = 1.2
+    yaw_damping: float = 0.05
+    top_speed: float = 100.0
+    bend_slowdown: float = 0.9
+    gas_steer_limit: float = 0.15
+    brake_margin: float = 10.0
+
+    def __call__(self, state: Mapping[str, np.ndarray]) -> Mapping[str, float]:
+        speed = float(state["speed"][0])
+        u = self.gain * (float(state["track_heading_error"][0])
+                         - math.atan2(self.offset_gain * float(state["track_offset"][0]), speed + 1.0)
+                         - self.yaw_damping * float(state["yaw_rate"][0]))  # fmt: skip
+        target = self.top_speed / (1.0 + self.bend_slowdown * float(state["track_turn_ahead"][0]))
+        return {"turn_left": min(1.0, max(0.0, u)), "turn_right": min(1.0, max(0.0, -u)),
+                "accelerate": float(speed < target and abs(u) < self.gas_steer_limit),
+                "decelerate": float(speed > target + self.brake_margin), "hold": 0.0}  # fmt: skip
 
 
 def pursuit_driver(env: cr.CarRacing, rng: np.random.Generator, mode: str = "road", noise: float = 0.3) -> np.ndarray:
