@@ -373,7 +373,7 @@ class TrackFollowRule:
     Speed: the target is ``top_speed / (1 + bend_slowdown * track_turn_ahead)``; ``accelerate`` is 1 below it while
     ``|u| < gas_steer_limit`` (gas in a turn spins the rear-driven car out), ``decelerate`` 1 above it by more than
     ``brake_margin``. ``hold`` stays 0. Defaults: tuned on tracks of seeds 1000-1005, by a random search over
-    ~135 settings (`benchmarks/results/carracing/table1/README.md`)."""
+    ~135 settings (``benchmarks/results/carracing/track_rule/``)."""
 
     gain: float = 0.65
     offset_gain: float = 1.2
