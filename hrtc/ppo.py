@@ -20,6 +20,7 @@ from hrtc.errors import ConfigError, UnknownNameError
 
 ADVANTAGES = ("gae", "one_step")
 VALUE_LOSSES = ("mse", "smooth_l1")
+KL_STOPS = ("epoch", "minibatch")  # where target_kl is checked: CleanRL's (after each epoch) or SB3's
 
 
 def compute_gae(
@@ -91,6 +92,7 @@ class PPOConfig:
     max_grad_norm: float | None = 0.5
     norm_adv: bool = True
     target_kl: float | None = None
+    kl_stop: str = "epoch"
     normalize_obs: bool = True
     scale_reward: bool = True
     advantage: str = "gae"
@@ -104,6 +106,8 @@ class PPOConfig:
             raise UnknownNameError("advantage estimator", self.advantage, ADVANTAGES)
         if self.value_loss not in VALUE_LOSSES:
             raise UnknownNameError("value loss function", self.value_loss, VALUE_LOSSES)
+        if self.kl_stop not in KL_STOPS:
+            raise UnknownNameError("ppo.kl_stop", self.kl_stop, KL_STOPS)
         size = self.minibatch_size
         if size is not None and (not isinstance(size, int) or isinstance(size, bool) or size < 1):
             raise ConfigError(f"ppo.minibatch_size must be a positive integer or null, got {size!r}")
@@ -153,16 +157,19 @@ def ppo_update(
 
     Returns the standard diagnostics under CleanRL's names (``losses/approx_kl`` etc., last epoch's means).
     A minibatch whose loss is not finite is skipped and counted in ``losses/skipped`` (of ``losses/minibatches``).
+
+    ``cfg.target_kl`` stops the update early: with ``kl_stop="epoch"`` (CleanRL's) after the first epoch whose mean
+    approx KL exceeds it; with ``"minibatch"`` (stable-baselines3's) before the first gradient step whose minibatch
+    already has an approx KL above 1.5 x ``target_kl``, so no single epoch can carry the policy far past it.
     """
     size = batch.obs.shape[0]
     minibatch = cfg.minibatch_size or max(1, size // cfg.num_minibatches)
-    clipfracs, stats, skipped, total = [], {}, 0, 0
+    clipfracs, stats, skipped, total, stopped = [], {}, 0, 0, False
     for _ in range(cfg.update_epochs):
         order = torch.randperm(size, generator=generator).to(batch.obs.device)
         epoch_stats: dict[str, list[float]] = {"pg": [], "v": [], "ent": [], "kl": [], "old_kl": []}
         for start in range(0, size, minibatch):
             idx = order[start : start + minibatch]
-            total += 1
             obs = batch.obs[idx]  # gathered once: the value below reuses the encoder's features of this very tensor
             dist = policy.distribution(obs)
             logratio = dist.log_prob(batch.samples[idx]) - batch.logprobs[idx]
@@ -171,6 +178,10 @@ def ppo_update(
                 epoch_stats["old_kl"].append(float((-logratio).mean()))
                 epoch_stats["kl"].append(float(((ratio - 1) - logratio).mean()))
                 clipfracs.append(float(((ratio - 1.0).abs() > cfg.clip_coef).float().mean()))
+            if cfg.kl_stop == "minibatch" and cfg.target_kl is not None and epoch_stats["kl"][-1] > 1.5 * cfg.target_kl:
+                stopped = True
+                break
+            total += 1
             adv = batch.advantages[idx]
             if cfg.norm_adv and adv.numel() > 1:
                 adv = (adv - adv.mean()) / (adv.std() + 1e-8)
@@ -190,7 +201,7 @@ def ppo_update(
             epoch_stats["v"].append(v_loss.item())
             epoch_stats["ent"].append(entropy.item())
         stats = {k: float(np.mean(v)) if v else float("nan") for k, v in epoch_stats.items()}
-        if cfg.target_kl is not None and stats["kl"] > cfg.target_kl:
+        if stopped or (cfg.kl_stop == "epoch" and cfg.target_kl is not None and stats["kl"] > cfg.target_kl):
             break
     return {
         "losses/policy_loss": stats["pg"],

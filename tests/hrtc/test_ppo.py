@@ -140,6 +140,43 @@ def test_without_clipping_a_large_gradient_moves_the_weights_further():
     assert clipped == pytest.approx(1e-3 * 0.5, rel=1e-3) and free > 100 * clipped
 
 
+@pytest.mark.parametrize(("target_kl", "kl_stop", "steps"), [
+    (None, "epoch", 4 * 8),  # no stop: every epoch's every minibatch
+    (None, "minibatch", 4 * 8),
+    (1e-9, "epoch", 8),  # CleanRL's: the first epoch runs whole, then its mean KL (> 0) stops the update
+    (1e-9, "minibatch", 1),  # SB3's: the first minibatch has KL 0 (nothing moved yet); the second is checked, stops
+])  # fmt: skip
+def test_target_kl_stops_after_an_epoch_or_before_a_minibatch(target_kl, kl_stop, steps):
+    torch.manual_seed(1)
+    policy, batch = _on_policy_batch(256, torch.randn(256), torch.randn(256))
+    cfg = PPOConfig(update_epochs=4, num_minibatches=8, target_kl=target_kl, kl_stop=kl_stop)
+    opt = torch.optim.Adam(policy.parameters(), lr=1e-3)
+    stats = ppo_update(policy, opt, batch, cfg, torch.Generator().manual_seed(0))
+    assert stats["losses/minibatches"] == steps
+    if target_kl is not None:
+        assert stats["losses/approx_kl"] > target_kl  # what stopped it is reported
+
+
+def test_minibatch_kl_stop_bounds_how_far_one_update_moves_the_policy():
+    """Large steps (lr 0.05, no clipping to flatten the surrogate) carry the policy far within one epoch: the
+    minibatch stop ends the update at the first minibatch past 1.5 x target_kl, the epoch stop only after a whole
+    epoch has gone past it."""
+
+    def after(kl_stop):
+        advantages = torch.randn(512, generator=torch.Generator().manual_seed(3))
+        policy, batch = _on_policy_batch(512, advantages, torch.zeros(512))
+        cfg = PPOConfig(update_epochs=4, num_minibatches=16, target_kl=0.01, kl_stop=kl_stop, max_grad_norm=None,
+                        clip_coef=10.0)  # fmt: skip
+        opt = torch.optim.Adam(policy.parameters(), lr=0.05)
+        steps = ppo_update(policy, opt, batch, cfg, torch.Generator().manual_seed(0))["losses/minibatches"]
+        with torch.no_grad():
+            logratio = policy.distribution(batch.obs).log_prob(batch.samples) - batch.logprobs
+            return steps, float(((logratio.exp() - 1) - logratio).mean())
+
+    (mb_steps, mb_kl), (epoch_steps, epoch_kl) = after("minibatch"), after("epoch")
+    assert mb_steps < epoch_steps == 16 and mb_kl < 0.5 * epoch_kl
+
+
 @pytest.mark.parametrize("bootstrap_terminal", [False, True])
 def test_bootstrap_terminal_adds_gamma_v_of_the_final_state(bootstrap_terminal):
     torch.manual_seed(0)
@@ -160,7 +197,7 @@ def test_bootstrap_terminal_adds_gamma_v_of_the_final_state(bootstrap_terminal):
 
 @pytest.mark.parametrize(
     "bad", [{"advantage": "td"}, {"value_loss": "l3"}, {"minibatch_size": 0}, {"max_grad_norm": 0.0},
-            {"adam_eps": -1.0}, {"norm_adv": "no"}])  # fmt: skip
+            {"adam_eps": -1.0}, {"norm_adv": "no"}, {"kl_stop": "update"}])  # fmt: skip
 def test_bad_ppo_settings_are_config_errors(bad):
     with pytest.raises((ConfigError, UnknownNameError)):
         PPOConfig(**bad)
