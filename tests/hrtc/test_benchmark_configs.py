@@ -24,6 +24,7 @@ STUDIES = {
     "cartpole_swingup_tree": ("cartpole_swingup", "cartpole_swingup/tree_transfer", 15),
     "cartpole_swingup_decision_rate_wall": ("cartpole_swingup", "cartpole_swingup/tree_transfer/decision_rate_wall", 6),
     "lunarlander": ("lunarlander", "lunarlander/core", 15),
+    "lunarlander_learners": ("lunarlander", "lunarlander/learners", 15),
     "panda_reach": ("panda_reach", "panda_reach", 3),
     "pendulum_swingup": ("pendulum_swingup", "pendulum_swingup/learners", 20),
     "carracing": ("carracing", "carracing/sitting_45min", 2),
