@@ -119,13 +119,14 @@ def test_discrete_variant_is_refused() -> None:
 
 
 def test_train_py_runs_hrtc_on_lunarlander_with_the_task_defaults(tmp_path) -> None:
-    """The user's command, two PPO updates long: the task's settings (decision every 5 env steps, 1,000 env steps an
-    update) and its six skills reach the trainer."""
+    """The user's command, 2,000 env steps long: the task's settings (its learner, SAC with critics 512 x 512 and two
+    gradient steps per decision; a decision every 5 env steps) and its six skills reach the trainer."""
     import subprocess
     import sys
     from pathlib import Path
 
     import pandas as pd
+    import yaml
 
     from hrtc.checkpoint import load_checkpoint
 
@@ -136,7 +137,11 @@ def test_train_py_runs_hrtc_on_lunarlander_with_the_task_defaults(tmp_path) -> N
     result = subprocess.run([sys.executable, str(root / "scripts" / "train.py"), *args], capture_output=True,
                             text=True, timeout=300, cwd=tmp_path)  # fmt: skip
     assert result.returncode == 0, result.stderr[-2000:]
-    assert list(pd.read_csv(run_dir / "train.csv")["step"]) == [1000, 2000]
+    rows = pd.read_csv(run_dir / "train.csv")  # SAC's: one row per 250 decisions (1,250 env steps with 2 envs)
+    assert len(rows) == 1 and "losses/q_loss" in rows.columns  # (no update yet: learning starts at 500 decisions)
+    sac = yaml.safe_load((run_dir / "config.yaml").read_text())["sac"]
+    assert sac["q_hidden"] == [512, 512] and sac["updates_per_decision"] == 2
     meta = load_checkpoint(run_dir / "checkpoints" / "last.pt")["meta"]
     assert meta["algo"] == "hrtc" and meta["dist"] == "beta" and meta["decision_every"] == 5
+    assert meta["learner"] == "sac"
     assert meta["skills"] == ["attitude", "centring", "descent", "hover", "touchdown", "idle"]
