@@ -43,9 +43,10 @@ def test_train_two_iterations_writes_the_run_directory(tmp_path, algo, num_steps
 def test_train_with_the_sac_learner_saves_its_replay_buffer_and_resumes(tmp_path):
     """learner=sac through the real entry point: losses in train.csv, the replay buffer in last.pt (not in best.pt),
     and a resume that continues the buffer and the step count."""
-    run_dir = tmp_path / "run"
+    run_dir = tmp_path / "run"  # one gradient step per decision (the task's default takes 2): the counts below
     args = ["task=cartpole_swingup", "learner=sac", "sac.learning_starts=100", "sac.log_every=100", "sac.batch_size=32",
-            "eval_every=500", "eval_episodes=1", "progress=false", f"hydra.run.dir={run_dir}"]  # fmt: skip
+            "sac.updates_per_decision=1", "eval_every=500", "eval_episodes=1", "progress=false",
+            f"hydra.run.dir={run_dir}"]  # fmt: skip
     result = _run([*args, "steps=1000"], tmp_path)
     assert result.returncode == 0, result.stderr[-2000:]
     train = pd.read_csv(run_dir / "train.csv")
