@@ -207,20 +207,19 @@ class FastCarRacing(cr.CarRacing):
 
     def _track_relative(self, position: np.ndarray, heading: float) -> tuple[float, float, float]:
         """(heading error, offset, turn ahead) of the car against the centre line (see :meth:`skill_state`)."""
-        if getattr(self, "_centre_of", None) is not self.track:  # a new track each reset
+        if getattr(self, "_centre_of", None) is not self.track:  # a new track each reset: everything per point, once
             centre = np.array([(t[2], t[3]) for t in self.track], dtype=np.float64)
             steps = np.roll(centre, -1, axis=0) - centre  # the centre line runs in the direction the car drives
-            self._centre, self._centre_of = centre, self.track
-            self._direction = np.arctan2(steps[:, 1], steps[:, 0])
-        centre, direction = self._centre, self._direction
-        nearest = int(np.argmin(((centre - position) ** 2).sum(1)))
-        along = direction[nearest]
-        relative = position - centre[nearest]
-        offset = math.cos(along) * relative[1] - math.sin(along) * relative[0]
+            direction = np.arctan2(steps[:, 1], steps[:, 0])
+            ahead = direction[(np.arange(len(centre))[:, None] + np.arange(TURN_AHEAD_POINTS)) % len(centre)]
+            turn = np.max(np.abs(np.unwrap(ahead, axis=1) - ahead[:, :1]), axis=1)
+            self._centre, self._direction, self._turn, self._centre_of = centre, direction, turn, self.track
+        nearest = int(np.argmin(((self._centre - position) ** 2).sum(1)))
+        along = float(self._direction[nearest])
+        dx, dy = position - self._centre[nearest]
+        offset = math.cos(along) * dy - math.sin(along) * dx
         heading_error = _wrap(along - (heading + math.pi / 2))  # the nose points along the body's +y
-        ahead = direction[(nearest + np.arange(TURN_AHEAD_POINTS)) % len(direction)]
-        turn = float(np.max(np.abs(np.unwrap(ahead) - ahead[0])))
-        return heading_error, float(offset), turn
+        return heading_error, float(offset), float(self._turn[nearest])
 
 
 class CarRacingTask(FastCarRacing):
