@@ -218,7 +218,7 @@ class FastCarRacing(cr.CarRacing):
         along = float(self._direction[nearest])
         dx, dy = position - self._centre[nearest]
         offset = math.cos(along) * dy - math.sin(along) * dx
-        heading_error = _wrap(along - (heading + math.pi / 2))  # the nose points along the body's +y
+        heading_error = math.remainder(along - (heading + math.pi / 2), math.tau)  # the nose: the body's +y
         return heading_error, float(offset), float(self._turn[nearest])
 
 
@@ -354,11 +354,6 @@ class CarRacingTask(FastCarRacing):
             os.write(fd, line.encode())  # one write of a short line under O_APPEND: atomic across processes
         finally:
             os.close(fd)
-
-
-def _wrap(angle: float) -> float:
-    """``angle`` wrapped to [-pi, pi)."""
-    return (angle + math.pi) % (2 * math.pi) - math.pi
 
 
 @dataclass(frozen=True)
