@@ -35,6 +35,7 @@ class RunConfig:
     action_filter: str = "sum"
     decision_every: int = 1
     weight_margin: float = 0.0  # HRTC's weight samples span [-m, 1 + m], clipped to [0, 1] (ComposedEnv)
+    init_weights: Mapping[str, float] | None = None  # HRTC: the untrained meta-policy's weights (hrtc.policy.start_at)
     seed: int = 1
     steps: int = 100_000
     num_envs: int = 2
@@ -70,6 +71,17 @@ class RunConfig:
             raise UnknownNameError("action filter mode", self.action_filter, BLEND_MODES)
         if not (isinstance(self.weight_margin, (int, float)) and 0.0 <= self.weight_margin < 10.0):
             raise ConfigError(f"algo.weight_margin must be a number in [0, 10), got {self.weight_margin!r}")
+        if self.init_weights:
+            if self.algo != "hrtc" or self.dist != "beta":
+                raise ConfigError(f"algo.init_weights needs algo=hrtc dist=beta, got algo={self.algo} dist={self.dist}")
+            if self.init_from:
+                raise ConfigError("algo.init_weights and init_from both set the starting policy: give one")
+            unknown = sorted(set(self.init_weights) - set(self.skills))
+            if unknown:
+                raise UnknownNameError("algo.init_weights skill", unknown[0], tuple(self.skills))
+            for name, weight in self.init_weights.items():
+                if not (isinstance(weight, (int, float)) and not isinstance(weight, bool) and 0.0 <= weight <= 1.0):
+                    raise ConfigError(f"algo.init_weights.{name} must be a weight in [0, 1], got {weight!r}")
         if self.vector not in ("async", "sync"):
             raise UnknownNameError("vector mode", self.vector, ("async", "sync"))
         if not isinstance(self.seed, int) or isinstance(self.seed, bool) or self.seed < 0:
@@ -145,6 +157,7 @@ class RunConfig:
             action_filter=str(algo.get("action_filter", "sum")),
             decision_every=algo.get("decision_every", 1),
             weight_margin=algo.get("weight_margin", 0.0),
+            init_weights=dict(algo["init_weights"]) if algo.get("init_weights") else None,
             dist=str(dist.get("name")),
             beta_init_bias=float(dist.get("init_bias", 0.0)),
             learner=learner,

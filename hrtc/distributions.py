@@ -102,6 +102,27 @@ class BetaHead(nn.Module):
         alpha, beta = (F.softplus(self.linear(features)) + 1.0).chunk(2, dim=-1)
         return BetaDistribution(alpha, beta)
 
+    @torch.no_grad()
+    def start_at(self, means: torch.Tensor) -> None:
+        """Set the bias so that component k starts (near-zero weights) with Beta mean ``means[k]`` in (0, 1), with
+        the smaller of alpha and beta at the head's starting ``c = softplus(init bias) + 1``: a mean of 0.5 keeps
+        Beta(c, c); 0.9 gives Beta(9c, c)."""
+        means = torch.as_tensor(means, dtype=self.linear.bias.dtype).clamp(BETA_EPS, 1.0 - BETA_EPS)
+        if means.shape != (self.dim,):
+            from hrtc.errors import ShapeError
+
+            raise ShapeError(f"start_at takes {self.dim} means, got shape {tuple(means.shape)}")
+        alpha, beta = (F.softplus(self.linear.bias) + 1.0).chunk(2)
+        c = torch.minimum(alpha, beta)  # the head's current (starting) concentration scale
+        alpha = torch.where(means >= 0.5, c * means / (1.0 - means), c)
+        beta = torch.where(means >= 0.5, c, c * (1.0 - means) / means)
+        self.linear.bias.copy_(torch.cat([_inverse_softplus(alpha - 1.0), _inverse_softplus(beta - 1.0)]))
+
+
+def _inverse_softplus(y: torch.Tensor) -> torch.Tensor:
+    """x with softplus(x) = y, for y > 0 (``log(expm1(y))``, in a form that stays finite for large y)."""
+    return y + torch.log(-torch.expm1(-y))
+
 
 class NormalHead(nn.Module):
     """Linear layer to the mean; a learned, state-independent ``log sigma`` starting at ``init_log_std``."""

@@ -157,6 +157,25 @@ def build_policy(obs_dim: int, low: np.ndarray, high: np.ndarray, dist: str, hid
                        activation=activation, weight_init=weight_init).to(resolve_device(device))  # fmt: skip
 
 
+def start_at(policy: ActorCritic, weights: Mapping[str, float], skills: Sequence[str], margin: float = 0.0) -> None:
+    """Make the untrained HRTC meta-policy's Beta means give ``weights`` (skill name: applied weight in [0, 1]; a skill
+    not named keeps the mean 0.5 of the paper's start). A weight w is the Beta mean u = (w + m) / (1 + 2 m) on the
+    span [-m, 1 + m] (``margin`` m), kept in [0.05, 0.95]: with m = 0 a mean cannot reach 0 or 1, so 0 and 1 start
+    at 0.05 and 0.95; with m = 0.25 they are exact. Only the Beta head's bias changes (:meth:`BetaHead.start_at`): the
+    network's outputs are near its bias at the start, so every state starts at these weights, and learning moves
+    them."""
+    from hrtc.distributions import BetaHead
+
+    if not isinstance(policy.actor_head, BetaHead):
+        raise ConfigError("starting weights need the Beta meta-policy (dist=beta)")
+    means = np.full(len(skills), 0.5)
+    for name, weight in weights.items():
+        if name not in skills:
+            raise UnknownNameError("skill", name, tuple(skills))
+        means[list(skills).index(name)] = (float(weight) + margin) / (1.0 + 2.0 * margin)
+    policy.actor_head.start_at(torch.as_tensor(np.clip(means, 0.05, 0.95), dtype=torch.float32))
+
+
 def to_action(u: np.ndarray, low: np.ndarray, high: np.ndarray, dist: str) -> np.ndarray:
     """A sample (or the mode) ``u`` of the meta-policy's distribution as the action it stands for: Beta samples in
     (0, 1) affinely onto ``[low, high]``, Normal samples clipped to it (in the inputs' dtype). For HRTC the bounds

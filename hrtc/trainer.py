@@ -40,7 +40,7 @@ from hrtc.errors import CheckpointError, WorkerError
 from hrtc.learner import Step, build_learner
 from hrtc.logging import CsvSink, Sink
 from hrtc.normalize import ObsNormalizer, RewardScaler, normalize_obs
-from hrtc.policy import build_policy, to_action
+from hrtc.policy import build_policy, start_at, to_action
 
 log = logging.getLogger(__name__)
 
@@ -81,6 +81,8 @@ class Trainer:
             self.eval_env.reset(seed=cfg.seed)
         if cfg.init_from and not resume:  # fine-tune: start from a trained policy of the same shape
             load_policy_weights(self, cfg.init_from)
+        if cfg.init_weights and not resume:  # start from a blend (e.g. a task's hand rule), not all weights at 0.5
+            start_at(self.policy, cfg.init_weights, self.skill_names, cfg.weight_margin)
         if resume and not (self.ckpt_dir / "last.pt").exists():
             log.warning("resume: no checkpoint in %s yet; starting from scratch", self.ckpt_dir)
             resume = False

@@ -75,6 +75,7 @@ def test_train_with_the_sac_learner_saves_its_replay_buffer_and_resumes(tmp_path
         (["steps=-3"], "steps must be a positive integer"),
         (["ppo.learning_rate=2.0"], "ppo.learning_rate must be in (0, 1)"),
         (["algo.action_filter=max"], "unknown action filter mode 'max'"),
+        (["algo.init_weights={swing: 1.0}"], "unknown algo.init_weights skill 'swing'"),
     ],
 )
 def test_bad_input_is_one_clear_line_and_a_nonzero_exit(tmp_path, args, expected):

@@ -24,6 +24,16 @@ def test_beta_head_starts_centred():
     assert torch.allclose(dist.mode(), torch.full((1, 5), 0.5))
 
 
+def test_beta_head_starts_at_the_given_means_with_its_own_concentration_scale():
+    head = BetaHead(4, 4)
+    head.start_at(torch.tensor([0.5, 0.9, 0.1, 0.75]))
+    dist = head(torch.zeros(1, 4))
+    c = 1.0 + math.log(2.0)  # the head's starting softplus(0) + 1
+    assert torch.allclose(dist.mode(), torch.tensor([[0.5, 0.9, 0.1, 0.75]]), atol=1e-6)
+    assert torch.allclose(torch.minimum(dist.alpha, dist.beta), torch.full((1, 4), c), atol=1e-5)
+    assert torch.allclose(dist.alpha[0, 1], torch.tensor(9 * c), rtol=1e-5)  # mean 0.9: Beta(9c, c)
+
+
 def test_beta_samples_lie_strictly_inside_unit_interval():
     torch.manual_seed(0)
     # Very concentrated at the edges: raw float32 samples hit exactly 0.0 and 1.0 here.

@@ -46,3 +46,23 @@ def test_the_declared_cartpole_rule_beats_every_skill_alone_on_the_real_task():
     rule = next(v for k, v in returns.items() if k.startswith("switching"))
     assert rule > 850 and rule > returns["swingup alone"] + 250 and rule > returns[UNTRAINED] + 250
     assert isinstance(rules["hold alone"], FixedWeights)
+
+
+def test_a_meta_policy_started_at_the_hand_blend_acts_it_on_the_real_task():
+    """algo.init_weights: the untrained meta-policy's Beta means give the hand blend's weights exactly (weights at 0
+    and 1 with the weight span's margin), so its deterministic episodes are the blend's."""
+    from hrtc.episodes import eval_seeds, evaluate
+    from hrtc.policy import build_policy, start_at
+
+    task = task_config("lunarlander")
+    env = make_env("lunarlander", "hrtc", task["skills"], decision_every=5, weight_margin=0.25)
+    hand = {"centring": 1.0, "descent": 1.0, "touchdown": 1.0}
+    space = env.action_space
+    policy = build_policy(env.observation_space.shape[0], space.low, space.high, "beta", (64, 64))
+    start_at(policy, {**hand, "attitude": 0.0, "hover": 0.0, "idle": 0.0}, env.skill_names, 0.25)
+    seeds = eval_seeds(1, 2)
+    learned = evaluate(policy, None, env, seeds, "beta")
+    blend = evaluate_rules(env, {"hand": FixedWeights(hand)}, seeds)["hand"]
+    np.testing.assert_allclose(learned, blend, atol=1e-3)
+    with pytest.raises(Exception, match="unknown skill 'nosuch'"):
+        start_at(policy, {"nosuch": 1.0}, env.skill_names, 0.25)
