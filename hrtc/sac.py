@@ -36,6 +36,7 @@ class SACConfig:
     batch_size: int = 256
     buffer_size: int = 100_000
     learning_starts: int = 500  # decisions (summed over envs) taken with the initial policy before any update
+    actor_starts: int = 0  # decisions observed before the actor (and temperature) first move; the critics learn before
     updates_per_decision: float = 1.0  # gradient steps per decision collected (the update-to-data ratio)
     q_hidden: tuple[int, ...] = (256, 256)
     target_entropy_per_weight: float = -1.0  # target entropy = this x K (nats)
@@ -53,7 +54,7 @@ class SACConfig:
             value = getattr(self, name)
             if not isinstance(value, int) or isinstance(value, bool) or value < 1:
                 raise ConfigError(f"sac.{name} must be a positive integer, got {value!r}")
-        for name in ("learning_starts", "critic_grad_penalty_start"):
+        for name in ("learning_starts", "actor_starts", "critic_grad_penalty_start"):
             value = getattr(self, name)
             if not isinstance(value, int) or isinstance(value, bool) or value < 0:
                 raise ConfigError(f"sac.{name} must be a non-negative integer, got {value!r}")
@@ -296,6 +297,9 @@ class SACLearner:
         self.target_critics = copy.deepcopy(self.critics).requires_grad_(False)
         self.q_optimizer = torch.optim.Adam(self.critics.parameters(), lr=cfg.learning_rate)
         self.actor_optimizer = torch.optim.Adam(policy.parameters(), lr=cfg.learning_rate)
+        # What actor_starts holds still: every parameter of the policy but its master critic V(s)'s own layers.
+        critic_ids = {id(p) for p in policy.critic.parameters()}
+        self._actor_parameters = [p for p in policy.parameters() if id(p) not in critic_ids]
         self.log_temperature = torch.tensor(float(np.log(cfg.init_temperature)), requires_grad=True)
         self.temperature_optimizer = torch.optim.Adam([self.log_temperature], lr=cfg.learning_rate)
         self.target_entropy = cfg.target_entropy_per_weight * k
@@ -350,15 +354,20 @@ class SACLearner:
         losses = sac_losses(self.policy, self.critics, self.target_critics, batch, temperature, pair, self.cfg.actor_q,
                             penalty)  # fmt: skip
         # Each backward pass accumulates into its own parameters only: the actor's loss never moves the critics.
+        actor_moves = self.decisions >= self.cfg.actor_starts  # before: the critics learn the starting policy's Q
         self.actor_optimizer.zero_grad()
         (losses["actor"] + losses["value"]).backward(inputs=list(self.policy.parameters()))
         self.q_optimizer.zero_grad()
         losses["q"].backward(inputs=list(self.critics.parameters()))
         self.q_optimizer.step()
+        if not actor_moves:  # V(s) still learns the soft value; the meta-policy's own weights stay
+            for parameter in self._actor_parameters:
+                parameter.grad = None
         self.actor_optimizer.step()
-        self.temperature_optimizer.zero_grad()
-        temperature_loss(self.log_temperature, losses["logp"], self.target_entropy).backward()
-        self.temperature_optimizer.step()
+        if actor_moves:
+            self.temperature_optimizer.zero_grad()
+            temperature_loss(self.log_temperature, losses["logp"], self.target_entropy).backward()
+            self.temperature_optimizer.step()
         soft_update(self.target_critics, self.critics, self.cfg.tau)
         self.gradient_steps += 1
         with torch.no_grad():  # summed as tensors: one conversion per train.csv row, not per gradient step

@@ -293,6 +293,36 @@ def test_the_critics_penalty_applies_only_from_its_start():
     assert not all(torch.equal(a, b) for a, b in zip(plain, early, strict=True))
 
 
+def test_the_actor_holds_still_until_actor_starts_while_the_critics_learn():
+    """Before ``actor_starts`` decisions the meta-policy's distribution and the temperature stay as they started
+    (the critics and V(s) learn); from then on the actor moves too."""
+    torch.manual_seed(0)
+    policy = ActorCritic(2, 2, "beta", (8,))
+    cfg = SACConfig(batch_size=4, learning_starts=4, actor_starts=12, q_hidden=(8,), log_every=1000)
+    learner = SACLearner(policy, cfg, 0.9, torch.Generator().manual_seed(0))
+    actor = [p.detach().clone() for p in learner._actor_parameters]
+    value, critics = [[p.detach().clone() for p in m.parameters()] for m in (policy.critic, learner.critics)]
+    temperature = learner.temperature
+    rng = np.random.default_rng(0)
+
+    def step() -> None:
+        obs, nxt = rng.normal(size=(2, 2)).astype(np.float32), rng.normal(size=(2, 2)).astype(np.float32)
+        no = np.zeros(2, bool)
+        learner.observe(Step(obs, rng.random((2, 2)).astype(np.float32), rng.normal(size=2), nxt, no, no))
+        learner.update()
+
+    for _ in range(5):  # 10 decisions: 8 gradient steps (2 a step from the 2nd), all before the actor starts at 12
+        step()
+    assert learner.gradient_steps == 8
+    assert all(torch.equal(a, p) for a, p in zip(actor, learner._actor_parameters, strict=True))
+    assert learner.temperature == temperature
+    assert not any(torch.equal(a, p) for a, p in zip(value, policy.critic.parameters(), strict=True))
+    assert not any(torch.equal(a, p) for a, p in zip(critics, learner.critics.parameters(), strict=True))
+    step()  # 12 decisions: the actor moves
+    assert not all(torch.equal(a, p) for a, p in zip(actor, learner._actor_parameters, strict=True))
+    assert learner.temperature != temperature
+
+
 # --------------------------------------------------------------------------------------------------- learning
 SWITCH_TASK = "test_switch_line"
 
