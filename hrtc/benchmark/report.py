@@ -526,13 +526,25 @@ def plot_curves(
     plt.close(fig)
 
 
+def _cpu_model() -> str:
+    """The processor's model name where Linux says it (float results of the same seed differ between CPU models),
+    else the architecture."""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return f"{platform.machine()} {line.split(':', 1)[1].strip()}"
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
 def machine_info() -> str:
     """One line describing this machine (and the Ray cluster, if one is connected)."""
     import torch
 
     line = (
         f"{platform.platform()}; python {platform.python_version()}; {os.cpu_count()} cores; torch {torch.__version__};"
-        f" {platform.processor() or platform.machine()}; date {time.strftime('%Y-%m-%d %H:%M')}; load average"
+        f" {_cpu_model()}; date {time.strftime('%Y-%m-%d %H:%M')}; load average"
         f" {os.getloadavg()[0]:.1f} at the start"
     )
     try:
