@@ -13,7 +13,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from hrtc.distributions import BetaDistribution, NormalDistribution, make_head
+from hrtc.distributions import BetaDistribution, BetaHead, NormalDistribution, make_head
 from hrtc.encoders import build_encoder
 from hrtc.errors import ConfigError, UnknownNameError
 
@@ -164,8 +164,6 @@ def start_at(policy: ActorCritic, weights: Mapping[str, float], skills: Sequence
     at 0.05 and 0.95; with m = 0.25 they are exact. Only the Beta head's bias changes (:meth:`BetaHead.start_at`): the
     network's outputs are near its bias at the start, so every state starts at these weights, and learning moves
     them."""
-    from hrtc.distributions import BetaHead
-
     if not isinstance(policy.actor_head, BetaHead):
         raise ConfigError("starting weights need the Beta meta-policy (dist=beta)")
     means = np.full(len(skills), 0.5)

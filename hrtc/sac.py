@@ -356,11 +356,12 @@ class SACLearner:
         # Each backward pass accumulates into its own parameters only: the actor's loss never moves the critics.
         actor_moves = self.decisions >= self.cfg.actor_starts  # before: the critics learn the starting policy's Q
         self.actor_optimizer.zero_grad()
-        (losses["actor"] + losses["value"]).backward(inputs=list(self.policy.parameters()))
+        policy_loss = losses["actor"] + losses["value"] if actor_moves else losses["value"]
+        policy_loss.backward(inputs=list(self.policy.parameters()))
         self.q_optimizer.zero_grad()
         losses["q"].backward(inputs=list(self.critics.parameters()))
         self.q_optimizer.step()
-        if not actor_moves:  # V(s) still learns the soft value; the meta-policy's own weights stay
+        if not actor_moves:  # V(s) still learns the soft value; the rest (a shared encoder too) stays
             for parameter in self._actor_parameters:
                 parameter.grad = None
         self.actor_optimizer.step()

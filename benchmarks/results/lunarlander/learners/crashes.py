@@ -14,6 +14,7 @@ import argparse
 import sys
 from pathlib import Path
 
+import gymnasium as gym
 import numpy as np
 import torch
 
@@ -21,7 +22,27 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[4]))
 
 from hrtc.benchmark.metrics import checkpoint_env  # noqa: E402
 from hrtc.checkpoint import load_policy  # noqa: E402
-from hrtc.episodes import eval_seeds, mode_decider  # noqa: E402
+from hrtc.episodes import eval_seeds, mode_decider, run_episodes  # noqa: E402
+
+
+class EpisodeWatch(gym.Wrapper):
+    """Per episode: its seed, first and last observation, and the weights applied at each decision (ComposedEnv
+    clips the sampled span to [0, 1])."""
+
+    def __init__(self, env: gym.Env) -> None:
+        super().__init__(env)
+        self.rows: list[dict] = []
+
+    def reset(self, **kwargs):
+        obs, info = self.env.reset(**kwargs)
+        self.rows.append({"seed": kwargs.get("seed"), "first": obs.copy(), "weights": []})
+        return obs, info
+
+    def step(self, action):
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        self.rows[-1]["weights"].append(np.clip(action, 0.0, 1.0))
+        self.rows[-1]["end"] = obs[[0, 1, 4]]
+        return obs, reward, terminated, truncated, info
 
 
 def main() -> None:
@@ -32,21 +53,15 @@ def main() -> None:
     args = parser.parse_args()
     torch.set_num_threads(1)
     loaded = load_policy(args.checkpoint)
-    env = checkpoint_env(loaded.meta)
+    env = EpisodeWatch(checkpoint_env(loaded.meta))
     decide = mode_decider(loaded.policy, loaded.normalizer, env.action_space, loaded.meta["dist"])
-    rows = []
-    for seed in eval_seeds(args.seed, args.episodes):
-        obs, _ = env.reset(seed=seed)
-        first, total, done, weights = obs.copy(), 0.0, False, []
-        while not done:
-            decision = decide(obs)
-            weights.append(np.clip(decision.action, 0.0, 1.0))  # the weights applied (ComposedEnv clips the span)
-            obs, reward, terminated, truncated, _ = env.step(decision.action)
-            total, done = total + float(reward), terminated or truncated
-        w = np.asarray(weights)
-        rows.append({"seed": seed, "return": total, "vx0": first[2], "vy0": first[3], "w3": w[:30].mean(0),
-                     "w": w.mean(0), "decisions": len(w), "end": obs[[0, 1, 4]]})  # fmt: skip
+    returns = run_episodes(env, decide, eval_seeds(args.seed, args.episodes))
     env.close()
+    rows = []
+    for row, total in zip(env.rows, returns, strict=True):
+        w = np.asarray(row["weights"])
+        rows.append({"seed": row["seed"], "return": float(total), "vx0": row["first"][2], "vy0": row["first"][3],
+                     "w3": w[:30].mean(0), "w": w.mean(0), "decisions": len(w), "end": row["end"]})  # fmt: skip
     returns = np.array([r["return"] for r in rows])
     print(f"{args.checkpoint}: mean {returns.mean():.1f}, failed (< 100) {int((returns < 100).sum())} of {len(rows)}")
     print("weights in the order", ", ".join(loaded.meta["skills"]))
