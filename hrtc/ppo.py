@@ -155,7 +155,8 @@ def ppo_update(
 ) -> dict[str, float]:
     """K epochs of minibatch updates on the clipped surrogate (Eq. 4-5), value loss and entropy bonus.
 
-    Returns the standard diagnostics under CleanRL's names (``losses/approx_kl`` etc., last epoch's means).
+    Returns the standard diagnostics under CleanRL's names (``losses/approx_kl`` etc., last epoch's means; the losses
+    of the last epoch that took a step where the minibatch stop ended one before its first).
     A minibatch whose loss is not finite is skipped and counted in ``losses/skipped`` (of ``losses/minibatches``).
 
     ``cfg.target_kl`` stops the update early: with ``kl_stop="epoch"`` (CleanRL's) after the first epoch whose mean
@@ -200,7 +201,8 @@ def ppo_update(
             epoch_stats["pg"].append(pg_loss.item())
             epoch_stats["v"].append(v_loss.item())
             epoch_stats["ent"].append(entropy.item())
-        stats = {k: float(np.mean(v)) if v else float("nan") for k, v in epoch_stats.items()}
+        # An epoch the minibatch stop ends before its first step keeps the last epoch's losses (and reports its KL).
+        stats = {k: float(np.mean(v)) if v else stats.get(k, float("nan")) for k, v in epoch_stats.items()}
         if stopped or (cfg.kl_stop == "epoch" and cfg.target_kl is not None and stats["kl"] > cfg.target_kl):
             break
     return {

@@ -157,6 +157,24 @@ def test_target_kl_stops_after_an_epoch_or_before_a_minibatch(target_kl, kl_stop
         assert stats["losses/approx_kl"] > target_kl  # what stopped it is reported
 
 
+def test_a_minibatch_stop_before_an_epochs_first_step_keeps_the_last_epochs_losses():
+    """One minibatch per epoch: epoch 1 steps (KL 0), epoch 2's only minibatch is past the target and stops before
+    any step. The losses reported are epoch 1's (finite, as the same update without a stop after one epoch), the KL the
+    one that stopped it (a run's train.csv once showed NaN entropies there)."""
+    advantages, returns = torch.randn(2, 64, generator=torch.Generator().manual_seed(1))
+    reports = []
+    for epochs, target_kl in ((3, 1e-9), (1, None)):
+        policy, batch = _on_policy_batch(64, advantages, returns)
+        cfg = PPOConfig(update_epochs=epochs, num_minibatches=1, target_kl=target_kl, kl_stop="minibatch")
+        opt = torch.optim.Adam(policy.parameters(), lr=1e-3)
+        reports.append(ppo_update(policy, opt, batch, cfg, torch.Generator().manual_seed(0)))
+    stopped, one_epoch = reports
+    assert stopped["losses/minibatches"] == 1
+    for key in ("losses/policy_loss", "losses/value_loss", "losses/entropy"):
+        assert np.isfinite(stopped[key]) and stopped[key] == pytest.approx(one_epoch[key])
+    assert stopped["losses/approx_kl"] > 1.5e-9 and one_epoch["losses/approx_kl"] == pytest.approx(0.0, abs=1e-7)
+
+
 def test_minibatch_kl_stop_bounds_how_far_one_update_moves_the_policy():
     """Large steps (lr 0.05, no clipping to flatten the surrogate) carry the policy far within one epoch: the
     minibatch stop ends the update at the first minibatch past 1.5 x target_kl, the epoch stop only after a whole
