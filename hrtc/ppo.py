@@ -201,7 +201,7 @@ def ppo_update(
             epoch_stats["pg"].append(pg_loss.item())
             epoch_stats["v"].append(v_loss.item())
             epoch_stats["ent"].append(entropy.item())
-        # An epoch the minibatch stop ends before its first step keeps the previous losses; its KL (the stop) is reported.
+        # An epoch the minibatch stop ends before its first step keeps the previous losses; its KL (the stop) is kept.
         stats = {k: float(np.mean(v)) if v else stats.get(k, float("nan")) for k, v in epoch_stats.items()}
         if stopped or (cfg.kl_stop == "epoch" and cfg.target_kl is not None and stats["kl"] > cfg.target_kl):
             break
