@@ -39,6 +39,7 @@ class SACConfig:
     actor_starts: int = 0  # decisions observed before the actor (and temperature) first move; the critics learn before
     updates_per_decision: float = 1.0  # gradient steps per decision collected (the update-to-data ratio)
     q_hidden: tuple[int, ...] = (256, 256)
+    q_layer_norm: bool = False  # a LayerNorm after each critic hidden layer's Linear, before its ReLU (RLPD's critics)
     target_entropy_per_weight: float = -1.0  # target entropy = this x K (nats)
     init_temperature: float = 0.1
     log_every: int = 250  # decisions between rows of train.csv
@@ -72,6 +73,8 @@ class SACConfig:
             raise ConfigError(f"sac.n_critics must be at least 2 (a target is the min of a pair), got {self.n_critics}")
         if not (np.isfinite(self.critic_grad_penalty) and self.critic_grad_penalty >= 0.0):
             raise ConfigError(f"sac.critic_grad_penalty must be >= 0 and finite, got {self.critic_grad_penalty}")
+        if not isinstance(self.q_layer_norm, bool):
+            raise ConfigError(f"sac.q_layer_norm must be true or false, got {self.q_layer_norm!r}")
         if self.actor_q not in ("min", "mean"):
             raise ConfigError(f"sac.actor_q must be 'min' or 'mean', got {self.actor_q!r}")
         if not self.q_hidden or any(int(h) < 1 for h in self.q_hidden):
@@ -184,21 +187,24 @@ class NStepAccumulator:
 class TwinQ(nn.Module):
     """``n`` critics Q_i(s, w): ReLU MLPs on the concatenated state and weights. (B, obs_dim), (B, K) -> (n, B).
 
+    ``layer_norm`` puts a LayerNorm between each hidden layer's Linear and its ReLU (as RLPD's critics do).
     (Stacking the critics' layers into batched matrix products was measured slower on CPU than separate layers.)"""
 
-    def __init__(self, obs_dim: int, sample_dim: int, hidden: Sequence[int], n: int = 2) -> None:
+    def __init__(
+        self, obs_dim: int, sample_dim: int, hidden: Sequence[int], n: int = 2, layer_norm: bool = False
+    ) -> None:
         super().__init__()
-        self.critics = nn.ModuleList(_relu_mlp(obs_dim + sample_dim, hidden) for _ in range(n))
+        self.critics = nn.ModuleList(_relu_mlp(obs_dim + sample_dim, hidden, layer_norm) for _ in range(n))
 
     def forward(self, obs: torch.Tensor, samples: torch.Tensor) -> torch.Tensor:
         x = torch.cat([obs, samples], dim=-1)
         return torch.stack([critic(x).squeeze(-1) for critic in self.critics])
 
 
-def _relu_mlp(in_dim: int, hidden: Sequence[int]) -> nn.Sequential:
+def _relu_mlp(in_dim: int, hidden: Sequence[int], layer_norm: bool = False) -> nn.Sequential:
     layers: list[nn.Module] = []
     for width in hidden:
-        layers += [nn.Linear(in_dim, int(width)), nn.ReLU()]
+        layers += [nn.Linear(in_dim, int(width)), *([nn.LayerNorm(int(width))] if layer_norm else []), nn.ReLU()]
         in_dim = int(width)
     return nn.Sequential(*layers, nn.Linear(in_dim, 1))
 
@@ -293,7 +299,7 @@ class SACLearner:
 
         self.policy, self.cfg, self.gamma, self.generator = policy, cfg, gamma, generator
         obs_dim, k = int(policy.obs_dim), int(policy.out_dim)
-        self.critics = TwinQ(obs_dim, k, cfg.q_hidden, n=cfg.n_critics)
+        self.critics = TwinQ(obs_dim, k, cfg.q_hidden, n=cfg.n_critics, layer_norm=cfg.q_layer_norm)
         self.target_critics = copy.deepcopy(self.critics).requires_grad_(False)
         self.q_optimizer = torch.optim.Adam(self.critics.parameters(), lr=cfg.learning_rate)
         self.actor_optimizer = torch.optim.Adam(policy.parameters(), lr=cfg.learning_rate)

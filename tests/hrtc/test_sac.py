@@ -101,6 +101,24 @@ def test_twin_critics_are_independent_networks():
     assert not torch.allclose(out[0], out[1])
 
 
+def test_layer_normed_critics_ignore_the_scale_of_each_hidden_layers_input_weights():
+    """With q_layer_norm each hidden layer's pre-activation is normalised: scaling a hidden Linear's weights and bias
+    by any c > 0 leaves the critics' output unchanged (it changes the plain critics' output)."""
+    torch.manual_seed(0)
+    obs, w = torch.randn(9, 5), torch.rand(9, 3)
+    for layer_norm in (True, False):
+        q = TwinQ(5, 3, (16, 16), layer_norm=layer_norm)
+        before = q(obs, w).detach()
+        with torch.no_grad():
+            for critic in q.critics:
+                hidden = [m for m in critic if isinstance(m, torch.nn.Linear)][:-1]
+                for linear in hidden:
+                    linear.weight.mul_(7.0), linear.bias.mul_(7.0)
+        after = q(obs, w).detach()
+        assert torch.allclose(before, after, atol=1e-4) == layer_norm
+        assert sum(isinstance(m, torch.nn.LayerNorm) for m in q.modules()) == (4 if layer_norm else 0)
+
+
 def test_the_actor_loss_never_moves_the_critics():
     torch.manual_seed(0)
     policy, critics = ActorCritic(4, 3, "beta", (16,)), TwinQ(4, 3, (16,))
@@ -177,6 +195,7 @@ def test_the_critics_gradient_penalty_is_the_squared_slope_in_the_weights():
         ("actor_q", "max", "sac.actor_q must be 'min' or 'mean'"),
         ("critic_grad_penalty", -0.1, "sac.critic_grad_penalty must be >= 0"),
         ("critic_grad_penalty_start", -1, "sac.critic_grad_penalty_start must be a non-negative integer"),
+        ("q_layer_norm", "yes", "sac.q_layer_norm must be true or false"),
     ],
 )
 def test_bad_ensemble_and_penalty_settings_are_one_config_error(key, value, message):

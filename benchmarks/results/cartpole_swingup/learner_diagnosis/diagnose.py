@@ -140,9 +140,11 @@ def critic_gradients(path: str) -> None:
     state = load_checkpoint(path)["optimizer"]  # a SAC run saves its learner's state under this key
     obs = state["buffer"]["obs"][-5000:]
     k, m = state["buffer"]["samples"].shape[1], margin_of(meta)
-    hidden = [v.shape[0] for name, v in state["critics"].items() if name.startswith("critics.0.") and
-              name.endswith(".bias")][:-1]  # fmt: skip
-    critics = TwinQ(obs.shape[1], k, hidden)
+    first = {name: v for name, v in state["critics"].items() if name.startswith("critics.0.")}
+    hidden = [v.shape[0] for name, v in first.items() if name.endswith(".weight") and v.dim() == 2][:-1]
+    layer_norm = any(name.endswith(".weight") and v.dim() == 1 for name, v in first.items())  # LayerNorm's gains
+    n = len({name.split(".")[1] for name in state["critics"]})
+    critics = TwinQ(obs.shape[1], k, hidden, n=n, layer_norm=layer_norm)
     critics.load_state_dict(state["critics"])
     with torch.no_grad():
         u = policy.distribution(obs).mode().clone()  # the Beta means, in (0, 1)
