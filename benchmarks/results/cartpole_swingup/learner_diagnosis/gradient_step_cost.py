@@ -18,13 +18,14 @@ import torch
 from hrtc.policy import ActorCritic
 from hrtc.sac import SACConfig, SACLearner
 
-SETTINGS = [  # (critic hidden widths, gradient steps per decision, number of critics)
-    ((512, 512), 2, 2),  # cartpole_swingup's default
-    ((256, 256), 1, 2),  # the root config's (the default until the ninth sitting)
-    ((256, 256), 2, 5),  # the ensemble of section 12
-    ((128, 128), 2, 2),
-    ((64, 64), 2, 2),
-    ((256,), 2, 2),
+SETTINGS = [  # (critic hidden widths, gradient steps per decision, number of critics, LayerNorm in the critics)
+    ((512, 512), 2, 2, False),  # cartpole_swingup's default
+    ((512, 512), 2, 2, True),  # the same with sac.q_layer_norm (section 14)
+    ((256, 256), 1, 2, False),  # the root config's (the default until the ninth sitting)
+    ((256, 256), 2, 5, False),  # the ensemble of section 12
+    ((128, 128), 2, 2, False),
+    ((64, 64), 2, 2, False),
+    ((256,), 2, 2, False),
 ]
 
 
@@ -32,15 +33,17 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--steps", type=int, default=200)
+    parser.add_argument("--first", type=int, default=len(SETTINGS), help="time only the first N settings")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     rng = np.random.default_rng(0)
     obs_dim, k, n = 5, 4, 5000
     print("| critics | steps per decision | ms per gradient step | ms per decision |")
     print("|---|---|---|---|")
-    for hidden, updates, critics in SETTINGS:
+    for hidden, updates, critics, layer_norm in SETTINGS[: args.first]:
         torch.manual_seed(0)
-        cfg = SACConfig(q_hidden=hidden, updates_per_decision=updates, n_critics=critics, learning_starts=0)
+        cfg = SACConfig(q_hidden=hidden, updates_per_decision=updates, n_critics=critics, learning_starts=0,
+                        q_layer_norm=layer_norm)  # fmt: skip
         learner = SACLearner(ActorCritic(obs_dim, k, "beta", hidden=(64, 64)), cfg, 0.99**5,
                              torch.Generator().manual_seed(0))  # fmt: skip
         learner.buffer.add(rng.normal(size=(n, obs_dim)).astype(np.float32), rng.random((n, k), np.float32),
@@ -52,7 +55,7 @@ def main() -> None:
         for _ in range(args.steps):
             learner._gradient_step()
         per_step = (time.perf_counter() - start) / args.steps
-        label = f"{critics} x {list(hidden)}"
+        label = f"{critics} x {list(hidden)}" + (" LayerNorm" if layer_norm else "")
         print(f"| {label} | {updates} | {per_step * 1e3:.1f} | {per_step * updates * 1e3:.1f} |", flush=True)
 
 
