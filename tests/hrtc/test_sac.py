@@ -113,7 +113,8 @@ def test_layer_normed_critics_ignore_the_scale_of_each_hidden_layers_input_weigh
             for critic in q.critics:
                 hidden = [m for m in critic if isinstance(m, torch.nn.Linear)][:-1]
                 for linear in hidden:
-                    linear.weight.mul_(7.0), linear.bias.mul_(7.0)
+                    linear.weight.mul_(7.0)
+                    linear.bias.mul_(7.0)
         after = q(obs, w).detach()
         assert torch.allclose(before, after, atol=1e-4) == layer_norm
         assert sum(isinstance(m, torch.nn.LayerNorm) for m in q.modules()) == (4 if layer_norm else 0)

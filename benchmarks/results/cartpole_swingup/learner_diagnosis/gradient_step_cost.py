@@ -19,8 +19,8 @@ from hrtc.policy import ActorCritic
 from hrtc.sac import SACConfig, SACLearner
 
 SETTINGS = [  # (critic hidden widths, gradient steps per decision, number of critics, LayerNorm in the critics)
-    ((512, 512), 2, 2, False),  # cartpole_swingup's default
-    ((512, 512), 2, 2, True),  # the same with sac.q_layer_norm (section 14)
+    ((512, 512), 2, 2, False),  # cartpole_swingup's default until section 14
+    ((512, 512), 2, 2, True),  # the same with sac.q_layer_norm: cartpole_swingup's default since section 14
     ((256, 256), 1, 2, False),  # the root config's (the default until the ninth sitting)
     ((256, 256), 2, 5, False),  # the ensemble of section 12
     ((128, 128), 2, 2, False),
