@@ -7,6 +7,7 @@
 # (training time, without start-up).
 set -u
 repo=$(cd "$(dirname "$0")/../../../.." && pwd)
+if [ $# -lt 1 ]; then echo "usage: bash time_to_800.sh SEED [hydra overrides...]" >&2; exit 2; fi
 seed=$1; shift
 dir=$(mktemp -d "${TMPDIR:-/tmp}/time_to_800.XXXX")
 cd "$dir"
@@ -27,4 +28,7 @@ while kill -0 $pid 2>/dev/null; do
   fi
   sleep 0.2
 done
+if [ -z "$csv" ]; then
+  echo "seed $seed $*: the run ended before its first evaluation; its output: $dir/out.log" >&2; exit 1
+fi
 echo "seed $seed $*: no evaluation >= 800 in 20,000 env steps: $(awk -F, 'NR > 1 {printf "%s:%.0f ", $1, $2}' "$csv") ($dir)"
