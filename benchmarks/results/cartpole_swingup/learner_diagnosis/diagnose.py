@@ -4,6 +4,7 @@
     python benchmarks/results/cartpole_swingup/learner_diagnosis/diagnose.py --soft-rules [--episodes 10]
     python benchmarks/results/cartpole_swingup/learner_diagnosis/diagnose.py --by-angle CHECKPOINT [--episodes 3]
     python benchmarks/results/cartpole_swingup/learner_diagnosis/diagnose.py --critic-gradients SAC_LAST_CHECKPOINT
+    python benchmarks/results/cartpole_swingup/learner_diagnosis/diagnose.py --critic-returns SAC_LAST_CHECKPOINT [...]
     python benchmarks/results/cartpole_swingup/learner_diagnosis/diagnose.py --recording RUN_DIR --steps 20000 22500
 
 For each checkpoint, on the evaluation seeds of its seed: the return with the Beta means (what is evaluated) and with
@@ -17,6 +18,8 @@ alpha + beta. ``--soft-rules`` scores cartpole_swingup's switching rule with sof
 the critics' min at the policy's mean weights, per unit of applied weight, on the buffer's last 5,000 states, near
 upright and away from it. ``hold`` proposes zero force, so with the sum filter its weight changes nothing: its
 gradient measures the critics' gradient noise.
+``--critic-returns``: a SAC run's ``last.pt``: its critics' Q at the stored weights against the discounted returns
+the buffer's own episodes got, on its newest 2,500 decisions whose return is complete.
 """
 
 from __future__ import annotations
@@ -132,20 +135,27 @@ def recording_by_angle(run_dir: str, steps: list[int]) -> None:
         print_bands(angle, weights, indent="    ")
 
 
-def critic_gradients(path: str) -> None:
+def load_critics(path: str) -> tuple[torch.nn.Module, dict]:
+    """A SAC run's critics (sizes read from the saved weights, LayerNorm or not) and its learner's saved state."""
     from hrtc.checkpoint import load_checkpoint
     from hrtc.sac import TwinQ
 
-    policy, _, meta = load_policy(path)
     state = load_checkpoint(path)["optimizer"]  # a SAC run saves its learner's state under this key
-    obs = state["buffer"]["obs"][-5000:]
-    k, m = state["buffer"]["samples"].shape[1], margin_of(meta)
     first = {name: v for name, v in state["critics"].items() if name.startswith("critics.0.")}
     hidden = [v.shape[0] for name, v in first.items() if name.endswith(".weight") and v.dim() == 2][:-1]
     layer_norm = any(name.endswith(".weight") and v.dim() == 1 for name, v in first.items())  # LayerNorm's gains
     n = len({name.split(".")[1] for name in state["critics"]})
-    critics = TwinQ(obs.shape[1], k, hidden, n=n, layer_norm=layer_norm)
+    buffer = state["buffer"]
+    critics = TwinQ(buffer["obs"].shape[1], buffer["samples"].shape[1], hidden, n=n, layer_norm=layer_norm)
     critics.load_state_dict(state["critics"])
+    return critics.eval(), state
+
+
+def critic_gradients(path: str) -> None:
+    policy, _, meta = load_policy(path)
+    critics, state = load_critics(path)
+    obs = state["buffer"]["obs"][-5000:]
+    m = margin_of(meta)
     with torch.no_grad():
         u = policy.distribution(obs).mode().clone()  # the Beta means, in (0, 1)
     u.requires_grad_(True)
@@ -161,6 +171,51 @@ def critic_gradients(path: str) -> None:
             + " | share of weights inside (0, 1): "
             + " ".join(f"{v:.2f}" for v in ((applied > 0) & (applied < 1))[mask].float().mean(0).tolist())
         )
+
+
+def discounted_returns(rewards: np.ndarray, obs: np.ndarray, next_obs: np.ndarray, gamma: float) -> np.ndarray:
+    """The discounted return every stored decision actually got, from the buffer alone (a Monte Carlo estimate), NaN
+    where fewer than the decisions that carry 95 % of the weight follow in its episode. The buffer holds the decisions
+    of ``n`` envs interleaved; ``n`` is the smallest lag at which a row's ``next_obs`` is the ``obs`` of the row that
+    lag later, and an episode ends where that chain breaks (a time limit: cartpole_swingup ends no other way)."""
+    size = len(rewards)
+    lag = next((n for n in range(1, 17) if np.mean(np.all(next_obs[: size - n] == obs[n:], axis=1)) > 0.9), None)
+    if lag is None:
+        raise SystemExit("the buffer's rows do not chain into episodes (no lag of 1-16 envs fits)")
+    tail = int(np.ceil(np.log(0.05) / np.log(gamma)))
+    returns = np.full(size, np.nan)
+    for env in range(lag):
+        rows = np.arange(env, size, lag)
+        chained = np.all(next_obs[rows[:-1]] == obs[rows[1:]], axis=1)
+        starts = np.concatenate([[0], np.flatnonzero(~chained) + 1, [len(rows)]])
+        for a, b in zip(starts[:-1], starts[1:], strict=True):
+            g, acc = np.zeros(b - a), 0.0
+            for t in range(b - a - 1, -1, -1):
+                acc = rewards[rows[a + t]] + gamma * acc
+                g[t] = acc
+            complete = max(b - a - tail, 0)  # a time limit or the newest decision cuts the sum: drop its tail
+            returns[rows[a : a + complete]] = g[:complete]
+    return returns
+
+
+def critic_returns(path: str, last: int = 2500) -> None:
+    """How far a SAC run's critics are from the returns the replayed episodes got: on the buffer's newest ``last``
+    decisions with a complete discounted return, the critics' min Q(s, w) at the stored weights against that return.
+    A ratio well below 1 means the critics still see only a few decisions ahead (their values grow from 0 by one
+    bootstrapped decision per target-network lag), so the actor follows a short-sighted objective."""
+    critics, state = load_critics(path)
+    buffer = state["buffer"]
+    discount = buffer["discount"].numpy()
+    if not np.allclose(discount, discount[0]):
+        raise SystemExit(f"{path}: multi-decision targets (sac.n_step > 1) are not read here")
+    obs, next_obs = buffer["obs"].numpy(), buffer["next_obs"].numpy()
+    returns = discounted_returns(buffer["rewards"].numpy(), obs, next_obs, float(discount[0]))
+    rows = np.flatnonzero(~np.isnan(returns))[-last:]
+    with torch.no_grad():
+        q = critics(buffer["obs"][rows], buffer["samples"][rows]).min(0).values.numpy()
+    g = returns[rows]
+    print(f"{path}: {len(rows)} decisions, gamma {discount[0]:.3f} per decision: mean Q {q.mean():.1f}, mean return "
+          f"{g.mean():.1f}, ratio {q.mean() / g.mean():.2f}, correlation {np.corrcoef(q, g)[0, 1]:.2f}")
 
 
 def soft_rules(episodes: int, action_filter: str = "sum") -> None:
@@ -188,6 +243,7 @@ if __name__ == "__main__":
     parser.add_argument("--soft-rules", action="store_true")
     parser.add_argument("--by-angle", action="store_true")
     parser.add_argument("--critic-gradients", action="store_true")
+    parser.add_argument("--critic-returns", action="store_true")
     parser.add_argument("--recording", help="a run directory: weights by |angle| band from its recording")
     parser.add_argument("--steps", type=int, nargs="*", default=[], help="the evaluations (env steps) to read")
     parser.add_argument("--action-filter", default="sum", choices=("sum", "convex"))
@@ -197,6 +253,9 @@ if __name__ == "__main__":
     if args.soft_rules:
         soft_rules(args.episodes, args.action_filter)
     for ckpt in args.checkpoints:
+        if args.critic_returns:
+            critic_returns(ckpt)
+            continue
         if args.by_angle or args.critic_gradients:
             (by_angle(ckpt, args.episodes) if args.by_angle else critic_gradients(ckpt))
             continue
