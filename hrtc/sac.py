@@ -38,6 +38,7 @@ class SACConfig:
     learning_starts: int = 500  # decisions (summed over envs) taken with the initial policy before any update
     actor_starts: int = 0  # decisions observed before the actor (and temperature) first move; the critics learn before
     updates_per_decision: float = 1.0  # gradient steps per decision collected (the update-to-data ratio)
+    actor_every: int = 1  # the actor and temperature step on every actor_every-th gradient step (TD3's policy delay)
     q_hidden: tuple[int, ...] = (256, 256)
     q_layer_norm: bool = False  # a LayerNorm after each critic hidden layer's Linear, before its ReLU (RLPD's critics)
     target_entropy_per_weight: float = -1.0  # target entropy = this x K (nats)
@@ -51,7 +52,7 @@ class SACConfig:
     critic_grad_penalty_start: int = 0  # decisions (summed over envs) observed before the penalty applies
 
     def __post_init__(self) -> None:
-        for name in ("batch_size", "buffer_size", "log_every", "n_step", "n_critics"):
+        for name in ("batch_size", "buffer_size", "log_every", "n_step", "n_critics", "actor_every"):
             value = getattr(self, name)
             if not isinstance(value, int) or isinstance(value, bool) or value < 1:
                 raise ConfigError(f"sac.{name} must be a positive integer, got {value!r}")
@@ -360,7 +361,10 @@ class SACLearner:
         losses = sac_losses(self.policy, self.critics, self.target_critics, batch, temperature, pair, self.cfg.actor_q,
                             penalty)  # fmt: skip
         # Each backward pass accumulates into its own parameters only: the actor's loss never moves the critics.
-        actor_moves = self.decisions >= self.cfg.actor_starts  # before: the critics learn the starting policy's Q
+        # Before actor_starts the critics learn the starting policy's Q; after it the actor (and the temperature) take
+        # one step per actor_every critic steps. V(s) learns on every step.
+        actor_moves = (self.decisions >= self.cfg.actor_starts
+                       and self.gradient_steps % self.cfg.actor_every == 0)  # fmt: skip
         self.actor_optimizer.zero_grad()
         policy_loss = losses["actor"] + losses["value"] if actor_moves else losses["value"]
         policy_loss.backward(inputs=list(self.policy.parameters()))

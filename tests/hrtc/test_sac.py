@@ -197,6 +197,7 @@ def test_the_critics_gradient_penalty_is_the_squared_slope_in_the_weights():
         ("critic_grad_penalty", -0.1, "sac.critic_grad_penalty must be >= 0"),
         ("critic_grad_penalty_start", -1, "sac.critic_grad_penalty_start must be a non-negative integer"),
         ("q_layer_norm", "yes", "sac.q_layer_norm must be true or false"),
+        ("actor_every", 0, "sac.actor_every must be a positive integer"),
     ],
 )
 def test_bad_ensemble_and_penalty_settings_are_one_config_error(key, value, message):
@@ -341,6 +342,32 @@ def test_the_actor_holds_still_until_actor_starts_while_the_critics_learn():
     step()  # 12 decisions: the actor moves
     assert not all(torch.equal(a, p) for a, p in zip(actor, learner._actor_parameters, strict=True))
     assert learner.temperature != temperature
+
+
+
+def test_the_actor_steps_on_every_actor_every_th_gradient_step():
+    """With ``actor_every=2`` the actor and the temperature change on gradient steps 0, 2, 4, ... only, while the
+    critics change on every one; with 1 (the default) the actor changes on every step."""
+    for every, moved in ((2, [True, False, True, False]), (1, [True, True, True, True])):
+        torch.manual_seed(0)
+        policy = ActorCritic(2, 2, "beta", (8,))
+        cfg = SACConfig(batch_size=4, learning_starts=2, updates_per_decision=0.5, actor_every=every, q_hidden=(8,),
+                        log_every=1000)  # fmt: skip
+        learner = SACLearner(policy, cfg, 0.9, torch.Generator().manual_seed(0))
+        rng = np.random.default_rng(0)
+        for _ in range(2):  # 4 decisions in the buffer, 1 gradient step owed
+            obs, nxt = rng.normal(size=(2, 2)).astype(np.float32), rng.normal(size=(2, 2)).astype(np.float32)
+            no = np.zeros(2, bool)
+            learner.observe(Step(obs, rng.random((2, 2)).astype(np.float32), rng.normal(size=2), nxt, no, no))
+        learner._credit = 0.0
+        for expected in moved:
+            actor = [p.detach().clone() for p in learner._actor_parameters]
+            critics = [p.detach().clone() for p in learner.critics.parameters()]
+            temperature = learner.temperature
+            learner._gradient_step()
+            actor_moved = not all(torch.equal(a, p) for a, p in zip(actor, learner._actor_parameters, strict=True))
+            assert actor_moved == expected and (learner.temperature != temperature) == expected
+            assert not any(torch.equal(a, p) for a, p in zip(critics, learner.critics.parameters(), strict=True))
 
 
 # --------------------------------------------------------------------------------------------------- learning
