@@ -344,7 +344,6 @@ def test_the_actor_holds_still_until_actor_starts_while_the_critics_learn():
     assert learner.temperature != temperature
 
 
-
 def test_the_actor_steps_on_every_actor_every_th_gradient_step():
     """With ``actor_every=2`` the actor and the temperature change on gradient steps 0, 2, 4, ... only, while the
     critics change on every one; with 1 (the default) the actor changes on every step."""
