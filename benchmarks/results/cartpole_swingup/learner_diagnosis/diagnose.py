@@ -88,9 +88,10 @@ def diagnose(path: str, episodes: int) -> dict[str, float]:
 ANGLE_BANDS = (0.0, 0.2, 0.5, 1.0, 2.0, 3.2)
 
 
-def print_bands(angle: np.ndarray, weights: np.ndarray, indent: str = "  ") -> None:
+def print_bands(angle: np.ndarray, weights: np.ndarray, indent: str = "  ",
+                bands: tuple[float, ...] = ANGLE_BANDS) -> None:  # fmt: skip
     """The mean of ``weights`` (N, K) over the decisions in each band of ``angle`` (N,), one line per non-empty band."""
-    for lo, hi in zip(ANGLE_BANDS[:-1], ANGLE_BANDS[1:], strict=True):
+    for lo, hi in zip(bands[:-1], bands[1:], strict=True):
         band = (angle >= lo) & (angle < hi)
         if band.any():
             means = " ".join(f"{v:.2f}" for v in weights[band].mean(0))
