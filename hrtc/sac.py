@@ -39,6 +39,7 @@ class SACConfig:
     actor_starts: int = 0  # decisions observed before the actor (and temperature) first move; the critics learn before
     updates_per_decision: float = 1.0  # gradient steps per decision collected (the update-to-data ratio)
     actor_every: int = 1  # the actor and temperature step on every actor_every-th gradient step (TD3's policy delay)
+    actor_every_from: int = 0  # decisions observed before actor_every applies; before, the actor steps on every step
     q_hidden: tuple[int, ...] = (256, 256)
     q_layer_norm: bool = False  # a LayerNorm after each critic hidden layer's Linear, before its ReLU (RLPD's critics)
     target_entropy_per_weight: float = -1.0  # target entropy = this x K (nats)
@@ -56,7 +57,7 @@ class SACConfig:
             value = getattr(self, name)
             if not isinstance(value, int) or isinstance(value, bool) or value < 1:
                 raise ConfigError(f"sac.{name} must be a positive integer, got {value!r}")
-        for name in ("learning_starts", "actor_starts", "critic_grad_penalty_start"):
+        for name in ("learning_starts", "actor_starts", "actor_every_from", "critic_grad_penalty_start"):
             value = getattr(self, name)
             if not isinstance(value, int) or isinstance(value, bool) or value < 0:
                 raise ConfigError(f"sac.{name} must be a non-negative integer, got {value!r}")
@@ -362,9 +363,10 @@ class SACLearner:
                             penalty)  # fmt: skip
         # Each backward pass accumulates into its own parameters only: the actor's loss never moves the critics.
         # Before actor_starts the critics learn the starting policy's Q; after it the actor (and the temperature) take
-        # one step per actor_every critic steps. V(s) learns on every step.
-        actor_moves = (self.decisions >= self.cfg.actor_starts
-                       and self.gradient_steps % self.cfg.actor_every == 0)  # fmt: skip
+        # one step per actor_every critic steps (from actor_every_from decisions on; one per step before). V(s) learns
+        # on every step.
+        every = self.cfg.actor_every if self.decisions >= self.cfg.actor_every_from else 1
+        actor_moves = self.decisions >= self.cfg.actor_starts and self.gradient_steps % every == 0
         self.actor_optimizer.zero_grad()
         policy_loss = losses["actor"] + losses["value"] if actor_moves else losses["value"]
         policy_loss.backward(inputs=list(self.policy.parameters()))

@@ -309,6 +309,8 @@ def main(argv: list[str]) -> int:
             meta["references"] = references(task, args, results_path, meta["seeds"])
         except HRTCError as error:
             fail(str(error))
+    elif results_path.exists() and "references" in (kept := json.loads(results_path.read_text())):
+        meta["references"] = kept["references"]  # none computed: the stored ones stay in the file and the table
     errors: dict[str, str] = {}
     with (out / "command.txt").open("a") as handle:  # every invocation: a resumed benchmark's runs come from several
         handle.write("python scripts/benchmark.py " + " ".join(argv) + "\n")

@@ -242,11 +242,14 @@ def test_benchmark_in_a_process_pool_skips_finished_runs(tmp_path: Path) -> None
     kept = results["runs"]["sb3_a2c/seed1"]
     del results["runs"]["sb3_a2c/seed2"]
     path.write_text(json.dumps(results))
-    proc = _bench(tmp_path, "algos=[sb3_a2c]", "seeds=2", "backend=process")
+    proc = _bench(tmp_path, "algos=[sb3_a2c]", "seeds=2", "backend=process", "references=false")
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert "1 already in" in proc.stdout and "1 to run" in proc.stdout
     again = json.loads(path.read_text())
     assert again["runs"]["sb3_a2c/seed1"] == kept  # skipped, not re-run
+    # Run without references, it keeps the stored ones, in the file and in the table.
+    assert again["references"] == results["references"] and "swingup alone" in again["references"]
+    assert "## References over the same skills" in (tmp_path / "out" / "table.md").read_text()
     commands = (tmp_path / "out" / "command.txt").read_text().splitlines()
     assert len(commands) == 2 and all(c.startswith("python scripts/benchmark.py task=") for c in commands)
     assert sorted(again["runs"]) == ["sb3_a2c/seed1", "sb3_a2c/seed2"]

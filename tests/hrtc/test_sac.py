@@ -198,6 +198,7 @@ def test_the_critics_gradient_penalty_is_the_squared_slope_in_the_weights():
         ("critic_grad_penalty_start", -1, "sac.critic_grad_penalty_start must be a non-negative integer"),
         ("q_layer_norm", "yes", "sac.q_layer_norm must be true or false"),
         ("actor_every", 0, "sac.actor_every must be a positive integer"),
+        ("actor_every_from", -1, "sac.actor_every_from must be a non-negative integer"),
     ],
 )
 def test_bad_ensemble_and_penalty_settings_are_one_config_error(key, value, message):
@@ -367,6 +368,31 @@ def test_the_actor_steps_on_every_actor_every_th_gradient_step():
             actor_moved = not all(torch.equal(a, p) for a, p in zip(actor, learner._actor_parameters, strict=True))
             assert actor_moved == expected and (learner.temperature != temperature) == expected
             assert not any(torch.equal(a, p) for a, p in zip(critics, learner.critics.parameters(), strict=True))
+
+
+def test_actor_every_applies_from_actor_every_from_decisions_on():
+    """With ``actor_every=2, actor_every_from=6`` the actor steps on every gradient step while fewer than 6 decisions
+    were observed (the odd steps too), and on every 2nd gradient step from the 6th decision on."""
+    torch.manual_seed(0)
+    policy = ActorCritic(2, 2, "beta", (8,))
+    cfg = SACConfig(batch_size=4, learning_starts=2, updates_per_decision=0.5, actor_every=2, actor_every_from=6,
+                    q_hidden=(8,), log_every=1000)  # fmt: skip
+    learner = SACLearner(policy, cfg, 0.9, torch.Generator().manual_seed(0))
+    rng = np.random.default_rng(0)
+    seen = []
+    for _ in range(6):  # 2 envs: 2, 4, ..., 12 decisions; one gradient step owed per 2 decisions once 2 are in
+        obs, nxt = rng.normal(size=(2, 2)).astype(np.float32), rng.normal(size=(2, 2)).astype(np.float32)
+        no = np.zeros(2, bool)
+        learner.observe(Step(obs, rng.random((2, 2)).astype(np.float32), rng.normal(size=2), nxt, no, no))
+        while learner._credit >= 1.0:
+            actor = [p.detach().clone() for p in learner._actor_parameters]
+            index, decisions = learner.gradient_steps, learner.decisions
+            learner._gradient_step()
+            learner._credit -= 1.0
+            seen.append((decisions, index, not all(torch.equal(a, p) for a, p in zip(actor, learner._actor_parameters,
+                                                                                    strict=True))))  # fmt: skip
+    assert any(d < 6 and i % 2 == 1 for d, i, _ in seen) and any(d >= 6 and i % 2 == 1 for d, i, _ in seen)
+    assert [moved for _, _, moved in seen] == [d < 6 or i % 2 == 0 for d, i, _ in seen]
 
 
 # --------------------------------------------------------------------------------------------------- learning
