@@ -40,6 +40,7 @@ class SACConfig:
     updates_per_decision: float = 1.0  # gradient steps per decision collected (the update-to-data ratio)
     actor_every: int = 1  # the actor and temperature step on every actor_every-th gradient step (TD3's policy delay)
     actor_every_from: int = 0  # decisions observed before actor_every applies; before, the actor steps on every step
+    policy_tau: float = 1.0  # Polyak rate per gradient step of the evaluated policy toward the trained (1: the same)
     q_hidden: tuple[int, ...] = (256, 256)
     q_layer_norm: bool = False  # a LayerNorm after each critic hidden layer's Linear, before its ReLU (RLPD's critics)
     target_entropy_per_weight: float = -1.0  # target entropy = this x K (nats)
@@ -67,6 +68,8 @@ class SACConfig:
             raise ConfigError(f"sac.gamma must be in [0, 1], got {self.gamma}")
         if not 0.0 < self.tau <= 1.0:
             raise ConfigError(f"sac.tau must be in (0, 1], got {self.tau}")
+        if not 0.0 < self.policy_tau <= 1.0:
+            raise ConfigError(f"sac.policy_tau must be in (0, 1], got {self.policy_tau}")
         if not self.updates_per_decision > 0:
             raise ConfigError(f"sac.updates_per_decision must be > 0, got {self.updates_per_decision}")
         if not self.init_temperature > 0:
@@ -299,7 +302,12 @@ class SACLearner:
     def __init__(self, policy: nn.Module, cfg: SACConfig, gamma: float, generator: torch.Generator) -> None:
         import copy
 
-        self.policy, self.cfg, self.gamma, self.generator = policy, cfg, gamma, generator
+        # ``policy`` is the run's: what evaluations, checkpoints and exports use. With policy_tau < 1 it is a Polyak
+        # average of the trained policy (self.policy, which acts and learns); with 1 it is the trained policy itself.
+        self.evaluated, self.cfg, self.gamma, self.generator = policy, cfg, gamma, generator
+        self.policy = copy.deepcopy(policy) if cfg.policy_tau < 1.0 else policy
+        self._synced = self.policy is policy  # a copy takes the run's starting weights (init_from...) at its first act
+        policy = self.policy
         obs_dim, k = int(policy.obs_dim), int(policy.out_dim)
         self.critics = TwinQ(obs_dim, k, cfg.q_hidden, n=cfg.n_critics, layer_norm=cfg.q_layer_norm)
         self.target_critics = copy.deepcopy(self.critics).requires_grad_(False)
@@ -321,6 +329,9 @@ class SACLearner:
 
     @torch.no_grad()
     def act(self, obs: np.ndarray) -> tuple[np.ndarray, object]:
+        if not self._synced:
+            self.policy.load_state_dict(self.evaluated.state_dict())
+            self._synced = True
         distribution = self.policy.distribution(torch.as_tensor(obs))
         return distribution.sample().numpy(), distribution
 
@@ -382,6 +393,8 @@ class SACLearner:
             temperature_loss(self.log_temperature, losses["logp"], self.target_entropy).backward()
             self.temperature_optimizer.step()
         soft_update(self.target_critics, self.critics, self.cfg.tau)
+        if self.evaluated is not self.policy:
+            soft_update(self.evaluated, self.policy, self.cfg.policy_tau)
         self.gradient_steps += 1
         with torch.no_grad():  # summed as tensors: one conversion per train.csv row, not per gradient step
             values = torch.stack([losses["q"], losses["actor"], losses["value"], -losses["logp"].mean(),
@@ -407,6 +420,7 @@ class SACLearner:
             "buffer": self.buffer.state_dict(), "n_step": self.accumulator.state_dict(),
             "counters": {"decisions": self.decisions, "gradient_steps": self.gradient_steps, "credit": self._credit,
                          "since_row": self._since_row},
+            **({"trained_policy": self.policy.state_dict()} if self.evaluated is not self.policy else {}),
         }  # fmt: skip
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
@@ -422,3 +436,6 @@ class SACLearner:
         self.decisions, self.gradient_steps = int(counters["decisions"]), int(counters["gradient_steps"])
         self._credit, self._since_row = float(counters["credit"]), int(counters["since_row"])
         self._sums, self._steps_in_row = None, 0
+        if self.evaluated is not self.policy:  # else a checkpoint without it (policy_tau was 1): the evaluated one
+            self.policy.load_state_dict(state.get("trained_policy", self.evaluated.state_dict()))
+            self._synced = True

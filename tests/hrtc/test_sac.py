@@ -1,10 +1,13 @@
 """The off-policy learner's pieces in isolation, and a meta-policy that learns a state-dependent switch with it."""
 
+import copy
+
 import gymnasium as gym
 import numpy as np
 import pandas as pd
 import pytest
 import torch
+from torch import nn
 
 import envs
 from hrtc.checkpoint import load_policy
@@ -199,6 +202,7 @@ def test_the_critics_gradient_penalty_is_the_squared_slope_in_the_weights():
         ("q_layer_norm", "yes", "sac.q_layer_norm must be true or false"),
         ("actor_every", 0, "sac.actor_every must be a positive integer"),
         ("actor_every_from", -1, "sac.actor_every_from must be a non-negative integer"),
+        ("policy_tau", 0.0, r"sac.policy_tau must be in \(0, 1\]"),
     ],
 )
 def test_bad_ensemble_and_penalty_settings_are_one_config_error(key, value, message):
@@ -393,6 +397,68 @@ def test_actor_every_applies_from_actor_every_from_decisions_on():
                                                                                     strict=True))))  # fmt: skip
     assert any(d < 6 and i % 2 == 1 for d, i, _ in seen) and any(d >= 6 and i % 2 == 1 for d, i, _ in seen)
     assert [moved for _, _, moved in seen] == [d < 6 or i % 2 == 0 for d, i, _ in seen]
+
+
+def _filled_learner(policy_tau: float, policy: nn.Module | None = None) -> tuple[SACLearner, nn.Module]:
+    torch.manual_seed(0)
+    policy = policy or ActorCritic(2, 2, "beta", (8,))
+    cfg = SACConfig(batch_size=4, learning_starts=2, q_hidden=(8,), log_every=1000, policy_tau=policy_tau)
+    learner = SACLearner(policy, cfg, 0.9, torch.Generator().manual_seed(0))
+    rng = np.random.default_rng(0)
+    for _ in range(3):
+        obs, nxt = rng.normal(size=(2, 2)).astype(np.float32), rng.normal(size=(2, 2)).astype(np.float32)
+        learner.act(obs)
+        no = np.zeros(2, bool)
+        learner.observe(Step(obs, rng.random((2, 2)).astype(np.float32), rng.normal(size=2), nxt, no, no))
+    return learner, policy
+
+
+def test_the_evaluated_policy_is_a_polyak_average_of_the_trained_one():
+    """``policy_tau=1`` (the default): the run's policy is the trained one. ``policy_tau=0.25``: the trained policy is
+    a copy, and after a gradient step each evaluated parameter is 0.75 x its old value + 0.25 x the trained one's."""
+    learner, policy = _filled_learner(1.0)
+    assert learner.policy is policy and "trained_policy" not in learner.state_dict()
+    learner, policy = _filled_learner(0.25)
+    assert learner.policy is not policy
+    before = [p.detach().clone() for p in policy.parameters()]
+    learner._gradient_step()
+    trained = list(learner.policy.parameters())
+    assert not all(torch.equal(a, p) for a, p in zip(before, trained, strict=True))  # the trained one moved
+    for old, new, t in zip(before, policy.parameters(), trained, strict=True):
+        torch.testing.assert_close(new, 0.75 * old + 0.25 * t.detach())
+    # The trained policy acts: act's distribution is its own, not the average's.
+    obs = np.zeros((1, 2), np.float32)
+    _, acting = learner.act(obs)
+    torch.testing.assert_close(acting.alpha, learner.policy.distribution(torch.as_tensor(obs)).alpha)
+    assert not torch.allclose(acting.alpha, policy.distribution(torch.as_tensor(obs)).alpha)
+
+
+def test_the_trained_copy_starts_from_the_runs_starting_weights_and_resumes_from_its_checkpoint():
+    """Weights put into the run's policy after the learner is built (``init_from``, ``init_weights``) reach the trained
+    copy at its first act; a state_dict round trip restores the trained copy, not the average."""
+    torch.manual_seed(0)
+    policy = ActorCritic(2, 2, "beta", (8,))
+    cfg = SACConfig(batch_size=4, learning_starts=2, q_hidden=(8,), log_every=1000, policy_tau=0.1)
+    learner = SACLearner(policy, cfg, 0.9, torch.Generator().manual_seed(0))
+    with torch.no_grad():
+        for p in policy.parameters():
+            p.add_(1.0)
+    learner.act(np.zeros((1, 2), np.float32))
+    for a, b in zip(policy.parameters(), learner.policy.parameters(), strict=True):
+        assert torch.equal(a, b)
+    learner, policy = _filled_learner(0.1)
+    for _ in range(3):
+        learner._gradient_step()
+    state = copy.deepcopy(learner.state_dict())
+    fresh_policy = ActorCritic(2, 2, "beta", (8,))
+    fresh_policy.load_state_dict(policy.state_dict())  # the trainer restores the run's (evaluated) policy first
+    fresh = SACLearner(fresh_policy, SACConfig(batch_size=4, learning_starts=2, q_hidden=(8,), log_every=1000,
+                                               policy_tau=0.1), 0.9, torch.Generator())  # fmt: skip
+    fresh.load_state_dict(state)
+    for a, b in zip(learner.policy.parameters(), fresh.policy.parameters(), strict=True):
+        assert torch.equal(a, b)
+    assert not all(torch.equal(a, b) for a, b in zip(fresh.policy.parameters(), fresh_policy.parameters(),
+                                                     strict=True))  # fmt: skip
 
 
 # --------------------------------------------------------------------------------------------------- learning
