@@ -399,11 +399,17 @@ def test_actor_every_applies_from_actor_every_from_decisions_on():
     assert [moved for _, _, moved in seen] == [d < 6 or i % 2 == 0 for d, i, _ in seen]
 
 
-def _filled_learner(policy_tau: float, policy: nn.Module | None = None) -> tuple[SACLearner, nn.Module]:
+def _averaging_learner(policy_tau: float) -> tuple[SACLearner, nn.Module]:
+    """A small SAC learner with ``policy_tau`` and the run's policy it was given (nothing observed yet)."""
     torch.manual_seed(0)
-    policy = policy or ActorCritic(2, 2, "beta", (8,))
+    policy = ActorCritic(2, 2, "beta", (8,))
     cfg = SACConfig(batch_size=4, learning_starts=2, q_hidden=(8,), log_every=1000, policy_tau=policy_tau)
-    learner = SACLearner(policy, cfg, 0.9, torch.Generator().manual_seed(0))
+    return SACLearner(policy, cfg, 0.9, torch.Generator().manual_seed(0)), policy
+
+
+def _filled_learner(policy_tau: float) -> tuple[SACLearner, nn.Module]:
+    """:func:`_averaging_learner` after 3 acts and observations of 2 envs (6 decisions in the buffer)."""
+    learner, policy = _averaging_learner(policy_tau)
     rng = np.random.default_rng(0)
     for _ in range(3):
         obs, nxt = rng.normal(size=(2, 2)).astype(np.float32), rng.normal(size=(2, 2)).astype(np.float32)
@@ -436,10 +442,7 @@ def test_the_evaluated_policy_is_a_polyak_average_of_the_trained_one():
 def test_the_trained_copy_starts_from_the_runs_starting_weights_and_resumes_from_its_checkpoint():
     """Weights put into the run's policy after the learner is built (``init_from``, ``init_weights``) reach the trained
     copy at its first act; a state_dict round trip restores the trained copy, not the average."""
-    torch.manual_seed(0)
-    policy = ActorCritic(2, 2, "beta", (8,))
-    cfg = SACConfig(batch_size=4, learning_starts=2, q_hidden=(8,), log_every=1000, policy_tau=0.1)
-    learner = SACLearner(policy, cfg, 0.9, torch.Generator().manual_seed(0))
+    learner, policy = _averaging_learner(0.1)
     with torch.no_grad():
         for p in policy.parameters():
             p.add_(1.0)
@@ -450,10 +453,8 @@ def test_the_trained_copy_starts_from_the_runs_starting_weights_and_resumes_from
     for _ in range(3):
         learner._gradient_step()
     state = copy.deepcopy(learner.state_dict())
-    fresh_policy = ActorCritic(2, 2, "beta", (8,))
+    fresh, fresh_policy = _averaging_learner(0.1)
     fresh_policy.load_state_dict(policy.state_dict())  # the trainer restores the run's (evaluated) policy first
-    fresh = SACLearner(fresh_policy, SACConfig(batch_size=4, learning_starts=2, q_hidden=(8,), log_every=1000,
-                                               policy_tau=0.1), 0.9, torch.Generator())  # fmt: skip
     fresh.load_state_dict(state)
     for a, b in zip(learner.policy.parameters(), fresh.policy.parameters(), strict=True):
         assert torch.equal(a, b)
