@@ -43,6 +43,7 @@ class SACConfig:
     policy_tau: float = 1.0  # Polyak rate per gradient step of the evaluated policy toward the trained (1: the same)
     q_hidden: tuple[int, ...] = (256, 256)
     q_layer_norm: bool = False  # a LayerNorm after each critic hidden layer's Linear, before its ReLU (RLPD's critics)
+    q_bf16: bool = False  # the critics' hidden layers in bfloat16 (CPU autocast); their output layer stays float32
     target_entropy_per_weight: float = -1.0  # target entropy = this x K (nats)
     init_temperature: float = 0.1
     log_every: int = 250  # decisions between rows of train.csv
@@ -78,8 +79,9 @@ class SACConfig:
             raise ConfigError(f"sac.n_critics must be at least 2 (a target is the min of a pair), got {self.n_critics}")
         if not (np.isfinite(self.critic_grad_penalty) and self.critic_grad_penalty >= 0.0):
             raise ConfigError(f"sac.critic_grad_penalty must be >= 0 and finite, got {self.critic_grad_penalty}")
-        if not isinstance(self.q_layer_norm, bool):
-            raise ConfigError(f"sac.q_layer_norm must be true or false, got {self.q_layer_norm!r}")
+        for name in ("q_layer_norm", "q_bf16"):
+            if not isinstance(getattr(self, name), bool):
+                raise ConfigError(f"sac.{name} must be true or false, got {getattr(self, name)!r}")
         if self.actor_q not in ("min", "mean"):
             raise ConfigError(f"sac.actor_q must be 'min' or 'mean', got {self.actor_q!r}")
         if not self.q_hidden or any(int(h) < 1 for h in self.q_hidden):
@@ -193,17 +195,28 @@ class TwinQ(nn.Module):
     """``n`` critics Q_i(s, w): ReLU MLPs on the concatenated state and weights. (B, obs_dim), (B, K) -> (n, B).
 
     ``layer_norm`` puts a LayerNorm between each hidden layer's Linear and its ReLU (as RLPD's critics do).
+    ``bf16`` runs the hidden layers under CPU autocast (their matrix products in bfloat16, 5-7x faster where the CPU
+    has AMX); the output layer, and so Q, stay float32, as do the weights, their gradients and the optimiser.
     (Stacking the critics' layers into batched matrix products was measured slower on CPU than separate layers.)"""
 
     def __init__(
-        self, obs_dim: int, sample_dim: int, hidden: Sequence[int], n: int = 2, layer_norm: bool = False
-    ) -> None:
+        self, obs_dim: int, sample_dim: int, hidden: Sequence[int], n: int = 2, layer_norm: bool = False,
+        bf16: bool = False,
+    ) -> None:  # fmt: skip
         super().__init__()
         self.critics = nn.ModuleList(_relu_mlp(obs_dim + sample_dim, hidden, layer_norm) for _ in range(n))
+        self.bf16 = bf16
 
     def forward(self, obs: torch.Tensor, samples: torch.Tensor) -> torch.Tensor:
         x = torch.cat([obs, samples], dim=-1)
-        return torch.stack([critic(x).squeeze(-1) for critic in self.critics])
+        out = []
+        for critic in self.critics:
+            h = x
+            with torch.autocast("cpu", dtype=torch.bfloat16, enabled=self.bf16):
+                for layer in critic[:-1]:
+                    h = layer(h)
+            out.append(critic[-1](h.float()).squeeze(-1))
+        return torch.stack(out)
 
 
 def _relu_mlp(in_dim: int, hidden: Sequence[int], layer_norm: bool = False) -> nn.Sequential:
@@ -309,7 +322,7 @@ class SACLearner:
         self._synced = self.policy is policy  # a copy takes the run's starting weights (init_from...) at its first act
         policy = self.policy
         obs_dim, k = int(policy.obs_dim), int(policy.out_dim)
-        self.critics = TwinQ(obs_dim, k, cfg.q_hidden, n=cfg.n_critics, layer_norm=cfg.q_layer_norm)
+        self.critics = TwinQ(obs_dim, k, cfg.q_hidden, n=cfg.n_critics, layer_norm=cfg.q_layer_norm, bf16=cfg.q_bf16)
         self.target_critics = copy.deepcopy(self.critics).requires_grad_(False)
         self.q_optimizer = torch.optim.Adam(self.critics.parameters(), lr=cfg.learning_rate)
         self.actor_optimizer = torch.optim.Adam(policy.parameters(), lr=cfg.learning_rate)

@@ -192,6 +192,49 @@ def test_the_critics_gradient_penalty_is_the_squared_slope_in_the_weights():
     assert torch.equal(sac_losses(policy, critics, target, batch, 0.1, grad_penalty=0.0)["q"], plain)
 
 
+def test_bf16_critics_run_their_hidden_layers_in_bfloat16_and_give_float32_q_and_gradients():
+    """q_bf16: each hidden layer's output is bfloat16 (the matrix products ran under autocast), the output layer's
+    and so Q are float32 and within bfloat16's rounding of the float32 critics with the same weights; every weight,
+    and its gradient, stays float32 (what the optimiser steps)."""
+    torch.manual_seed(0)
+    obs, w = torch.randn(64, 5), torch.rand(64, 3)
+    plain = TwinQ(5, 3, (64, 64), layer_norm=True)
+    fast = copy.deepcopy(plain)
+    fast.bf16 = True
+    dtypes: list[torch.dtype] = []
+    hooks = [m.register_forward_hook(lambda _m, _i, out: dtypes.append(out.dtype)) for m in fast.modules()
+             if isinstance(m, nn.Linear)]  # fmt: skip
+    q_fast = fast(obs, w)
+    for hook in hooks:
+        hook.remove()
+    assert dtypes == [torch.bfloat16, torch.bfloat16, torch.float32] * 2  # two hidden layers, then the output's
+    q_plain = plain(obs, w)
+    assert q_fast.dtype == torch.float32 and q_fast.shape == (2, 64)
+    assert not torch.equal(q_fast, q_plain)
+    torch.testing.assert_close(q_fast, q_plain, rtol=0.0, atol=0.05 * float(q_plain.detach().abs().max()))
+    q_fast.sum().backward()
+    assert all(p.dtype == torch.float32 and p.grad is not None and p.grad.dtype == torch.float32
+               for p in fast.parameters())  # fmt: skip
+
+
+def test_a_learner_with_bf16_critics_takes_float32_gradient_steps():
+    torch.manual_seed(0)
+    cfg = SACConfig(q_hidden=(32, 32), batch_size=16, learning_starts=0, q_bf16=True)
+    learner = SACLearner(ActorCritic(4, 3, "beta", hidden=(16,)), cfg, 0.95, torch.Generator().manual_seed(0))
+    assert learner.critics.bf16 and learner.target_critics.bf16
+    rng = np.random.default_rng(0)
+    learner.buffer.add(rng.normal(size=(64, 4)).astype(np.float32), rng.random((64, 3), np.float32),
+                       rng.normal(size=64).astype(np.float32), rng.normal(size=(64, 4)).astype(np.float32),
+                       np.zeros(64, np.float32), np.full(64, 0.95, np.float32))  # fmt: skip
+    before = [p.detach().clone() for p in learner.critics.parameters()]
+    for _ in range(3):
+        learner._gradient_step()
+    after = list(learner.critics.parameters())
+    assert all(p.dtype == torch.float32 for p in after)
+    assert all(not torch.equal(a, b) for a, b in zip(after, before, strict=True))
+    assert np.isfinite(learner._row()["losses/q_loss"])
+
+
 @pytest.mark.parametrize(
     ("key", "value", "message"),
     [
@@ -200,6 +243,7 @@ def test_the_critics_gradient_penalty_is_the_squared_slope_in_the_weights():
         ("critic_grad_penalty", -0.1, "sac.critic_grad_penalty must be >= 0"),
         ("critic_grad_penalty_start", -1, "sac.critic_grad_penalty_start must be a non-negative integer"),
         ("q_layer_norm", "yes", "sac.q_layer_norm must be true or false"),
+        ("q_bf16", 1, "sac.q_bf16 must be true or false"),
         ("actor_every", 0, "sac.actor_every must be a positive integer"),
         ("actor_every_from", -1, "sac.actor_every_from must be a non-negative integer"),
         ("policy_tau", 0.0, r"sac.policy_tau must be in \(0, 1\]"),
