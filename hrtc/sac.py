@@ -195,7 +195,7 @@ class TwinQ(nn.Module):
     """``n`` critics Q_i(s, w): ReLU MLPs on the concatenated state and weights. (B, obs_dim), (B, K) -> (n, B).
 
     ``layer_norm`` puts a LayerNorm between each hidden layer's Linear and its ReLU (as RLPD's critics do).
-    ``bf16`` runs the hidden layers under CPU autocast (their matrix products in bfloat16, 5-7x faster where the CPU
+    ``bf16`` runs the hidden layers under CPU autocast (their matrix products in bfloat16, 4-6x faster where the CPU
     has AMX); the output layer, and so Q, stay float32, as do the weights, their gradients and the optimiser.
     (Stacking the critics' layers into batched matrix products was measured slower on CPU than separate layers.)"""
 

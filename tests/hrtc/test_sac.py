@@ -209,6 +209,8 @@ def test_bf16_critics_run_their_hidden_layers_in_bfloat16_and_give_float32_q_and
         hook.remove()
     assert dtypes == [torch.bfloat16, torch.bfloat16, torch.float32] * 2  # two hidden layers, then the output's
     q_plain = plain(obs, w)
+    # Off, the layer-by-layer pass is the plain Sequential's, bit for bit (stored float32 runs retrace).
+    assert torch.equal(q_plain, torch.stack([c(torch.cat([obs, w], -1)).squeeze(-1) for c in plain.critics]))
     assert q_fast.dtype == torch.float32 and q_fast.shape == (2, 64)
     assert not torch.equal(q_fast, q_plain)
     torch.testing.assert_close(q_fast, q_plain, rtol=0.0, atol=0.05 * float(q_plain.detach().abs().max()))
@@ -218,6 +220,7 @@ def test_bf16_critics_run_their_hidden_layers_in_bfloat16_and_give_float32_q_and
 
 
 def test_a_learner_with_bf16_critics_takes_float32_gradient_steps():
+    """sac.q_bf16 reaches the learner's critics and their targets; its gradient steps move float32 weights."""
     torch.manual_seed(0)
     cfg = SACConfig(q_hidden=(32, 32), batch_size=16, learning_starts=0, q_bf16=True)
     learner = SACLearner(ActorCritic(4, 3, "beta", hidden=(16,)), cfg, 0.95, torch.Generator().manual_seed(0))
