@@ -14,6 +14,7 @@ averaging) and the buffer.
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, NamedTuple
@@ -24,6 +25,8 @@ from torch import nn
 from torch.nn import functional as F
 
 from hrtc.errors import ConfigError
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -43,7 +46,7 @@ class SACConfig:
     policy_tau: float = 1.0  # Polyak rate per gradient step of the evaluated policy toward the trained (1: the same)
     q_hidden: tuple[int, ...] = (256, 256)
     q_layer_norm: bool = False  # a LayerNorm after each critic hidden layer's Linear, before its ReLU (RLPD's critics)
-    q_bf16: bool = False  # the critics' hidden layers in bfloat16 (CPU autocast); their output layer stays float32
+    q_bf16: bool | str = False  # critic hidden layers in bfloat16 (CPU autocast); "auto": where cpu_has_bf16_matmul
     target_entropy_per_weight: float = -1.0  # target entropy = this x K (nats)
     init_temperature: float = 0.1
     log_every: int = 250  # decisions between rows of train.csv
@@ -79,9 +82,10 @@ class SACConfig:
             raise ConfigError(f"sac.n_critics must be at least 2 (a target is the min of a pair), got {self.n_critics}")
         if not (np.isfinite(self.critic_grad_penalty) and self.critic_grad_penalty >= 0.0):
             raise ConfigError(f"sac.critic_grad_penalty must be >= 0 and finite, got {self.critic_grad_penalty}")
-        for name in ("q_layer_norm", "q_bf16"):
-            if not isinstance(getattr(self, name), bool):
-                raise ConfigError(f"sac.{name} must be true or false, got {getattr(self, name)!r}")
+        if not isinstance(self.q_layer_norm, bool):
+            raise ConfigError(f"sac.q_layer_norm must be true or false, got {self.q_layer_norm!r}")
+        if not (isinstance(self.q_bf16, bool) or self.q_bf16 == "auto"):
+            raise ConfigError(f"sac.q_bf16 must be true, false or auto, got {self.q_bf16!r}")
         if self.actor_q not in ("min", "mean"):
             raise ConfigError(f"sac.actor_q must be 'min' or 'mean', got {self.actor_q!r}")
         if not self.q_hidden or any(int(h) < 1 for h in self.q_hidden):
@@ -191,12 +195,26 @@ class NStepAccumulator:
 
 
 # --------------------------------------------------------------------------------------------------- networks
+def cpu_has_bf16_matmul() -> bool:
+    """Whether this CPU multiplies bfloat16 matrices in hardware: Intel's AMX tiles or AVX-512 BF16 (AMD Zen 4 has
+    the latter). There the critics' bfloat16 hidden layers measured 0.63-0.70x of float32's gradient step
+    (``benchmarks/results/cartpole_swingup/learner_diagnosis``, sections 19-20); without them autocast would
+    emulate bfloat16 and cost more than it saves."""
+    probes = ("_is_amx_tile_supported", "_is_avx512_bf16_supported")  # torch.cpu's own probes (private, so guarded)
+    return any(bool(getattr(torch.cpu, name, lambda: False)()) for name in probes)
+
+
+def resolve_bf16(setting: bool | str) -> bool:
+    """``sac.q_bf16`` as the critics take it: ``"auto"`` is :func:`cpu_has_bf16_matmul`, a bool itself."""
+    return cpu_has_bf16_matmul() if setting == "auto" else bool(setting)
+
+
 class TwinQ(nn.Module):
     """``n`` critics Q_i(s, w): ReLU MLPs on the concatenated state and weights. (B, obs_dim), (B, K) -> (n, B).
 
     ``layer_norm`` puts a LayerNorm between each hidden layer's Linear and its ReLU (as RLPD's critics do).
-    ``bf16`` runs the hidden layers under CPU autocast (their matrix products in bfloat16, 4-6x faster where the CPU
-    has AMX); the output layer, and so Q, stay float32, as do the weights, their gradients and the optimiser.
+    ``bf16`` runs the hidden layers under CPU autocast (their matrix products in bfloat16: ~2x faster on AVX-512 BF16,
+    4-6x on AMX); the output layer, and so Q, stay float32, as do the weights, their gradients and the optimiser.
     (Stacking the critics' layers into batched matrix products was measured slower on CPU than separate layers.)"""
 
     def __init__(
@@ -322,7 +340,11 @@ class SACLearner:
         self._synced = self.policy is policy  # a copy takes the run's starting weights (init_from...) at its first act
         policy = self.policy
         obs_dim, k = int(policy.obs_dim), int(policy.out_dim)
-        self.critics = TwinQ(obs_dim, k, cfg.q_hidden, n=cfg.n_critics, layer_norm=cfg.q_layer_norm, bf16=cfg.q_bf16)
+        bf16 = resolve_bf16(cfg.q_bf16)
+        if cfg.q_bf16 == "auto":
+            log.info("sac.q_bf16=auto: the critics' hidden layers in %s", "bfloat16" if bf16 else "float32 (no "
+                     "bfloat16 matrix instructions on this CPU)")  # fmt: skip
+        self.critics = TwinQ(obs_dim, k, cfg.q_hidden, n=cfg.n_critics, layer_norm=cfg.q_layer_norm, bf16=bf16)
         self.target_critics = copy.deepcopy(self.critics).requires_grad_(False)
         self.q_optimizer = torch.optim.Adam(self.critics.parameters(), lr=cfg.learning_rate)
         self.actor_optimizer = torch.optim.Adam(policy.parameters(), lr=cfg.learning_rate)

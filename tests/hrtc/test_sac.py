@@ -238,6 +238,35 @@ def test_a_learner_with_bf16_critics_takes_float32_gradient_steps():
     assert np.isfinite(learner._row()["losses/q_loss"])
 
 
+@pytest.mark.parametrize("amx", [False, True])
+@pytest.mark.parametrize("avx512_bf16", [False, True])
+def test_bf16_auto_is_on_exactly_where_the_cpu_multiplies_bfloat16_in_hardware(monkeypatch, amx, avx512_bf16):
+    """sac.q_bf16=auto reads torch's CPU probes (AMX tiles, AVX-512 BF16): on with either, off with neither; true and
+    false are taken as given whatever the CPU."""
+    from hrtc.sac import resolve_bf16
+
+    monkeypatch.setattr(torch.cpu, "_is_amx_tile_supported", lambda: amx)
+    monkeypatch.setattr(torch.cpu, "_is_avx512_bf16_supported", lambda: avx512_bf16)
+    assert resolve_bf16("auto") is (amx or avx512_bf16)
+    assert resolve_bf16(True) is True and resolve_bf16(False) is False
+    learner = SACLearner(ActorCritic(4, 3, "beta", hidden=(8,)), SACConfig(q_hidden=(8,), q_bf16="auto"), 0.95,
+                         torch.Generator().manual_seed(0))  # fmt: skip
+    assert learner.critics.bf16 is (amx or avx512_bf16) and learner.target_critics.bf16 is learner.critics.bf16
+
+
+def test_bf16_auto_on_this_machine_follows_its_cpu_flags():
+    """Without patching: the probe agrees with the CPU flags Linux reports (amx_tile or avx512_bf16)."""
+    from pathlib import Path
+
+    from hrtc.sac import cpu_has_bf16_matmul
+
+    cpuinfo = Path("/proc/cpuinfo")
+    if not cpuinfo.exists():
+        pytest.skip("no /proc/cpuinfo to compare with")
+    flags = set(cpuinfo.read_text().split())
+    assert cpu_has_bf16_matmul() is bool({"amx_tile", "avx512_bf16"} & flags)
+
+
 @pytest.mark.parametrize(
     ("key", "value", "message"),
     [
@@ -246,7 +275,8 @@ def test_a_learner_with_bf16_critics_takes_float32_gradient_steps():
         ("critic_grad_penalty", -0.1, "sac.critic_grad_penalty must be >= 0"),
         ("critic_grad_penalty_start", -1, "sac.critic_grad_penalty_start must be a non-negative integer"),
         ("q_layer_norm", "yes", "sac.q_layer_norm must be true or false"),
-        ("q_bf16", 1, "sac.q_bf16 must be true or false"),
+        ("q_bf16", 1, "sac.q_bf16 must be true, false or auto"),
+        ("q_bf16", "yes", "sac.q_bf16 must be true, false or auto"),
         ("actor_every", 0, "sac.actor_every must be a positive integer"),
         ("actor_every_from", -1, "sac.actor_every_from must be a non-negative integer"),
         ("policy_tau", 0.0, r"sac.policy_tau must be in \(0, 1\]"),
