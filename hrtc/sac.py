@@ -56,6 +56,8 @@ class SACConfig:
     actor_q: str = "min"  # what the actor maximises: "min" over all N critics (SAC's) or their "mean" (REDQ's)
     critic_grad_penalty: float = 0.0  # lambda: the critics' loss adds lambda * E ||d(sum_i Q_i) / dw||^2 (stored w)
     critic_grad_penalty_start: int = 0  # decisions (summed over envs) observed before the penalty applies
+    priority_exponent: float = 0.0  # prioritised replay: draw a transition with probability ~ |TD error|^this (0: uniform)
+    priority_correction: float = 0.5  # importance weights (N P_i)^-this, over the batch's max, in the critics' loss
 
     def __post_init__(self) -> None:
         for name in ("batch_size", "buffer_size", "log_every", "n_step", "n_critics", "actor_every"):
@@ -86,6 +88,10 @@ class SACConfig:
             raise ConfigError(f"sac.q_layer_norm must be true or false, got {self.q_layer_norm!r}")
         if not (isinstance(self.q_bf16, bool) or self.q_bf16 == "auto"):
             raise ConfigError(f"sac.q_bf16 must be true, false or auto, got {self.q_bf16!r}")
+        for name in ("priority_exponent", "priority_correction"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 <= value <= 1.0:
+                raise ConfigError(f"sac.{name} must be a number in [0, 1], got {value!r}")
         if self.actor_q not in ("min", "mean"):
             raise ConfigError(f"sac.actor_q must be 'min' or 'mean', got {self.actor_q!r}")
         if not self.q_hidden or any(int(h) < 1 for h in self.q_hidden):
@@ -97,7 +103,8 @@ class ReplayBatch(NamedTuple):
     """Transitions ``(s, w, r, s', terminated, discount)``: obs (B, obs_dim), samples (B, K), rewards (B,) (the
     discounted sum over up to ``n_step`` decisions), next_obs (B, obs_dim) the state bootstrapped from, terminated (B,)
     as floats (1 where s' is terminal: nothing is bootstrapped from it; a time limit is not), discount (B,) the factor
-    of the bootstrap (gamma to the number of decisions summed)."""
+    of the bootstrap (gamma to the number of decisions summed). A prioritised draw adds ``weights`` (B,), the
+    importance weights of the critics' loss, and ``indices`` (B,), the buffer slots drawn (for their new priorities)."""
 
     obs: torch.Tensor
     samples: torch.Tensor
@@ -105,10 +112,16 @@ class ReplayBatch(NamedTuple):
     next_obs: torch.Tensor
     terminated: torch.Tensor
     discount: torch.Tensor
+    weights: torch.Tensor | None = None
+    indices: np.ndarray | None = None
 
 
 class ReplayBuffer:
-    """A ring buffer of transitions in preallocated float32 arrays; the oldest is overwritten when full."""
+    """A ring buffer of transitions in preallocated float32 arrays; the oldest is overwritten when full.
+
+    Each slot also holds a priority (Schaul et al. 2016, proportional): a new transition gets the largest priority
+    seen so far, so it is drawn soon; :meth:`update_priorities` sets drawn ones to ``|TD error| + 1e-6``.
+    :meth:`sample` uses them only with ``exponent`` > 0."""
 
     def __init__(self, capacity: int, obs_dim: int, sample_dim: int) -> None:
         self.capacity = int(capacity)
@@ -118,6 +131,8 @@ class ReplayBuffer:
         self.rewards = np.zeros(capacity, np.float32)
         self.terminated = np.zeros(capacity, np.float32)
         self.discount = np.zeros(capacity, np.float32)
+        self.priorities = np.zeros(capacity, np.float64)
+        self.max_priority = 1.0
         self.position, self.size = 0, 0
 
     def __len__(self) -> int:
@@ -130,29 +145,51 @@ class ReplayBuffer:
         idx = (self.position + np.arange(n)) % self.capacity
         self.obs[idx], self.samples[idx], self.rewards[idx] = obs, samples, rewards
         self.next_obs[idx], self.terminated[idx], self.discount[idx] = next_obs, terminated, discount
+        self.priorities[idx] = self.max_priority
         self.position = int((self.position + n) % self.capacity)
         self.size = min(self.size + n, self.capacity)
 
-    def sample(self, batch_size: int, generator: torch.Generator) -> ReplayBatch:
-        """``batch_size`` transitions drawn uniformly with replacement from what the buffer holds."""
-        idx = torch.randint(0, self.size, (batch_size,), generator=generator).numpy()
-        return ReplayBatch(*(torch.from_numpy(a[idx]) for a in (self.obs, self.samples, self.rewards, self.next_obs,
-                                                                 self.terminated, self.discount)))  # fmt: skip
+    def sample(self, batch_size: int, generator: torch.Generator, exponent: float = 0.0,
+               correction: float = 0.5) -> ReplayBatch:  # fmt: skip
+        """``batch_size`` transitions drawn with replacement from what the buffer holds: uniformly with ``exponent``
+        0; else slot i with probability ``P_i = p_i^exponent / sum_j p_j^exponent``, with importance weights
+        ``(N P_i)^-correction`` divided by the batch's largest (so they only scale the loss down)."""
+        if exponent == 0.0:
+            idx = torch.randint(0, self.size, (batch_size,), generator=generator).numpy()
+            weights = None
+        else:
+            scaled = self.priorities[: self.size] ** exponent
+            probs = torch.from_numpy(scaled / scaled.sum())
+            idx = torch.multinomial(probs, batch_size, replacement=True, generator=generator).numpy()
+            w = (self.size * probs[idx]) ** -correction
+            weights = (w / w.max()).float()
+        arrays = (self.obs, self.samples, self.rewards, self.next_obs, self.terminated, self.discount)
+        return ReplayBatch(*(torch.from_numpy(a[idx]) for a in arrays), weights=weights,
+                           indices=None if weights is None else idx)  # fmt: skip
+
+    def update_priorities(self, indices: np.ndarray, td_errors: np.ndarray) -> None:
+        """The drawn slots' new priorities, ``|TD error| + 1e-6`` (a slot drawn twice keeps the last)."""
+        priorities = np.abs(np.asarray(td_errors, np.float64)) + 1e-6
+        self.priorities[indices] = priorities
+        self.max_priority = max(self.max_priority, float(priorities.max()))
 
     def state_dict(self) -> dict[str, torch.Tensor | int]:
         """The filled part in chronological order (oldest first), as tensors (``weights_only`` loads them)."""
         order = (np.arange(self.size) + (self.position if self.size == self.capacity else 0)) % self.capacity
         arrays = {k: torch.from_numpy(getattr(self, k)[order].copy())
-                  for k in _FIELDS}  # fmt: skip
-        return {**arrays, "capacity": self.capacity}
+                  for k in (*_FIELDS, "priorities")}  # fmt: skip
+        return {**arrays, "capacity": self.capacity, "max_priority": self.max_priority}
 
     def load_state_dict(self, state: dict) -> None:
-        self.position, self.size = 0, 0
+        self.position, self.size, self.max_priority = 0, 0, 1.0
         n = int(state["rewards"].shape[0])
         keep = slice(max(0, n - self.capacity), n)  # a smaller buffer keeps the newest
         if "discount" not in state:  # saved before n-step targets: every transition was one decision
             state = {**state, "discount": torch.full_like(state["rewards"], float("nan"))}
         self.add(*(np.asarray(state[k][keep].numpy()) for k in _FIELDS))
+        self.max_priority = float(state.get("max_priority", 1.0))
+        if "priorities" in state:  # saved before prioritised replay: every slot at 1, drawn soon
+            self.priorities[: self.size] = state["priorities"][keep].numpy()
 
 
 _FIELDS = ("obs", "samples", "rewards", "next_obs", "terminated", "discount")
@@ -283,7 +320,8 @@ def sac_losses(policy: nn.Module, critics: TwinQ, target_critics: TwinQ, batch: 
     maximises ``Q(s, w) - temperature log pi(w | s)`` on fresh reparameterised weights, with Q the ``min`` or the
     ``mean`` over all critics (``actor_q``); V(s) fits that soft value. ``grad_penalty`` > 0 adds
     ``grad_penalty * E ||d(sum_i Q_i(s, w)) / dw||^2`` at the stored weights (the Beta samples) to the critics' loss:
-    the critics then keep a slope in a weight only where the returns ask for it. The caller must keep the actor loss's
+    the critics then keep a slope in a weight only where the returns ask for it. ``td`` (B,), the mean over the
+    critics of ``|Q_i - target|``, is a prioritised buffer's new priority. The caller must keep the actor loss's
     gradient out of the critics (see :meth:`SACLearner._gradient_step`)."""
     with torch.no_grad():
         next_w, next_logp = rsample_with_logp(policy.distribution(batch.next_obs))
@@ -294,7 +332,9 @@ def sac_losses(policy: nn.Module, critics: TwinQ, target_critics: TwinQ, batch: 
         )
     samples = batch.samples.clone().requires_grad_(True) if grad_penalty > 0 else batch.samples
     q_stored = critics(batch.obs, samples)
-    q_loss = ((q_stored - target) ** 2).mean(-1).sum()
+    td = q_stored - target  # (n, B)
+    # A prioritised batch weighs each transition's squared error by its importance weight (uniform: all 1).
+    q_loss = (td**2).mean(-1).sum() if batch.weights is None else (td**2 * batch.weights).mean(-1).sum()
     if grad_penalty > 0:
         (slope,) = torch.autograd.grad(q_stored.sum(), samples, create_graph=True)  # (B, K): d(sum_i Q_i) / dw
         q_loss = q_loss + grad_penalty * (slope**2).sum(-1).mean()
@@ -303,7 +343,8 @@ def sac_losses(policy: nn.Module, critics: TwinQ, target_critics: TwinQ, batch: 
     q_pi = q_all.min(0).values if actor_q == "min" else q_all.mean(0)
     actor_loss = (temperature * logp - q_pi).mean()
     value_loss = F.mse_loss(policy.value(batch.obs), (q_pi - temperature * logp).detach())
-    return {"q": q_loss, "actor": actor_loss, "value": value_loss, "logp": logp, "q_pi": q_pi, "target": target}
+    return {"q": q_loss, "actor": actor_loss, "value": value_loss, "logp": logp, "q_pi": q_pi, "target": target,
+            "td": td.detach().abs().mean(0)}  # fmt: skip
 
 
 # --------------------------------------------------------------------------------------------------- the learner
@@ -399,7 +440,8 @@ class SACLearner:
         return self._row() if self._since_row >= self.cfg.log_every else {}
 
     def _gradient_step(self) -> None:
-        batch = self.buffer.sample(self.cfg.batch_size, self.generator)
+        batch = self.buffer.sample(self.cfg.batch_size, self.generator, self.cfg.priority_exponent,
+                                   self.cfg.priority_correction)  # fmt: skip
         temperature = self.log_temperature.exp().detach()
         pair = (0, 1)
         if self.cfg.n_critics > 2:  # REDQ: a fresh random pair per gradient step (two critics draw nothing)
@@ -427,6 +469,8 @@ class SACLearner:
             self.temperature_optimizer.zero_grad()
             temperature_loss(self.log_temperature, losses["logp"], self.target_entropy).backward()
             self.temperature_optimizer.step()
+        if batch.indices is not None:
+            self.buffer.update_priorities(batch.indices, losses["td"].numpy())
         soft_update(self.target_critics, self.critics, self.cfg.tau)
         if self.evaluated is not self.policy:
             soft_update(self.evaluated, self.policy, self.cfg.policy_tau)

@@ -280,6 +280,9 @@ def test_bf16_auto_on_this_machine_follows_its_cpu_flags():
         ("actor_every", 0, "sac.actor_every must be a positive integer"),
         ("actor_every_from", -1, "sac.actor_every_from must be a non-negative integer"),
         ("policy_tau", 0.0, r"sac.policy_tau must be in \(0, 1\]"),
+        ("priority_exponent", 1.5, r"sac.priority_exponent must be a number in \[0, 1\]"),
+        ("priority_correction", -0.1, r"sac.priority_correction must be a number in \[0, 1\]"),
+        ("priority_exponent", True, r"sac.priority_exponent must be a number in \[0, 1\]"),
     ],
 )
 def test_bad_ensemble_and_penalty_settings_are_one_config_error(key, value, message):
@@ -346,6 +349,78 @@ def test_replay_buffer_samples_whole_transitions_uniformly():
     np.testing.assert_array_equal(batch.rewards.numpy(), batch.obs[:, 0].numpy())
     counts = np.unique(batch.rewards.numpy(), return_counts=True)[1]
     assert len(counts) == 4 and counts.min() > 850  # only what was added, about 1000 each
+
+
+def test_prioritised_draws_follow_the_priorities_and_their_importance_weights_undo_them():
+    """Priorities 1, 3, 0, 4 with exponent 1: slots drawn with probability 1/8, 3/8, ~0, 4/8; importance weights
+    (N P)^-0.5 over the batch's max; exponent 0 draws exactly as the uniform buffer does."""
+    buffer = ReplayBuffer(10, 1, 1)
+    buffer.add(np.arange(4.0)[:, None], np.zeros((4, 1)), np.arange(4.0), np.zeros((4, 1)), np.zeros(4), np.ones(4))
+    assert buffer.priorities[:4].tolist() == [1.0] * 4  # new transitions: the largest priority so far (1 at first)
+    buffer.update_priorities(np.arange(4), np.array([1.0, -3.0, 0.0, 4.0]))  # |TD error| + 1e-6
+    assert buffer.max_priority == pytest.approx(4.0)
+    batch = buffer.sample(40_000, torch.Generator().manual_seed(0), exponent=1.0, correction=0.5)
+    counts = np.bincount(batch.rewards.numpy().astype(int), minlength=4) / 40_000
+    np.testing.assert_allclose(counts, [1 / 8, 3 / 8, 0, 4 / 8], atol=0.01)
+    np.testing.assert_array_equal(batch.indices, batch.rewards.numpy().astype(int))
+    expected = (4 * np.array([1, 3, 4]) / 8) ** -0.5
+    for slot, weight in zip((0, 1, 3), expected / expected.max(), strict=True):  # the batch's max is slot 0's
+        np.testing.assert_allclose(batch.weights.numpy()[batch.indices == slot], weight, rtol=1e-5)
+    # exponent 0: the uniform draw, the same slots from the same generator state, no weights
+    uniform = ReplayBuffer(10, 1, 1)
+    uniform.add(np.arange(4.0)[:, None], np.zeros((4, 1)), np.arange(4.0), np.zeros((4, 1)), np.zeros(4), np.ones(4))
+    a = buffer.sample(64, torch.Generator().manual_seed(3))
+    b = uniform.sample(64, torch.Generator().manual_seed(3))
+    assert a.weights is None and a.indices is None and torch.equal(a.rewards, b.rewards)
+    buffer.add(np.ones((1, 1)), np.zeros((1, 1)), np.array([9.0]), np.zeros((1, 1)), np.zeros(1), np.ones(1))
+    assert buffer.priorities[4] == pytest.approx(4.0)  # a new one at the largest seen
+
+
+def test_priorities_wrap_around_with_their_transitions_and_survive_a_checkpoint():
+    buffer = ReplayBuffer(3, 1, 1)
+    for i in range(5):  # slots 0, 1 overwritten by transitions 3, 4, each at the largest priority then
+        buffer.add(np.full((1, 1), i), np.zeros((1, 1)), np.array([float(i)]), np.zeros((1, 1)), np.zeros(1),
+                   np.ones(1))  # fmt: skip
+        buffer.update_priorities(np.array([(i) % 3]), np.array([float(i + 1)]))
+    assert buffer.rewards.tolist() == [3, 4, 2] and buffer.priorities.tolist() == pytest.approx([4, 5, 3])
+    other = ReplayBuffer(3, 1, 1)
+    other.load_state_dict(buffer.state_dict())  # oldest first: 2, 3, 4 with their priorities
+    assert other.rewards.tolist() == [2, 3, 4] and other.priorities.tolist() == pytest.approx([3, 4, 5])
+    assert other.max_priority == pytest.approx(5.0)
+    old = {k: v for k, v in buffer.state_dict().items() if k not in ("priorities", "max_priority")}
+    other.load_state_dict(old)  # a checkpoint from before prioritised replay: every slot at 1
+    assert other.priorities.tolist() == [1.0, 1.0, 1.0] and other.max_priority == 1.0
+
+
+def test_importance_weights_scale_each_transitions_squared_error_in_the_critics_loss():
+    torch.manual_seed(0)
+    policy, critics = ActorCritic(2, 2, "beta", (8,)), TwinQ(2, 2, (8,))
+    obs = torch.randn(4, 2)
+    batch = ReplayBatch(obs, torch.rand(4, 2), torch.randn(4), torch.randn(4, 2), torch.zeros(4), torch.full((4,), 0.9))
+    torch.manual_seed(1)
+    plain = sac_losses(policy, critics, copy.deepcopy(critics), batch, 0.1)
+    torch.manual_seed(1)
+    weights = torch.tensor([1.0, 0.5, 0.0, 0.25])
+    weighted = sac_losses(policy, critics, copy.deepcopy(critics), batch._replace(weights=weights), 0.1)
+    q = critics(batch.obs, batch.samples)
+    expected = (((q - plain["target"]) ** 2) * weights).mean(-1).sum()
+    torch.testing.assert_close(weighted["q"], expected)
+    torch.testing.assert_close(plain["td"], (q - plain["target"]).abs().mean(0).detach())
+
+
+def test_a_prioritised_learner_sets_the_drawn_transitions_priorities_to_their_td_errors():
+    learner = SACLearner(ActorCritic(2, 2, "beta", (8,)), SACConfig(batch_size=4, learning_starts=8, q_hidden=(8,),
+                         log_every=1000, priority_exponent=0.5), 0.9, torch.Generator().manual_seed(0))  # fmt: skip
+    rng = np.random.default_rng(0)
+    for _ in range(5):
+        obs = rng.normal(size=(2, 2)).astype(np.float32)
+        no = np.zeros(2, bool)
+        learner.observe(Step(obs, rng.random((2, 2)).astype(np.float32), rng.normal(size=2) * 10, obs, no, no))
+        learner.update()
+    assert learner.gradient_steps > 0
+    p = learner.buffer.priorities[: len(learner.buffer)]
+    assert (p != 1.0).any() and (p > 0).all()  # drawn slots now hold |TD error|, the rest the largest seen
+    assert learner.buffer.max_priority == pytest.approx(max(1.0, p.max()))
 
 
 def test_sac_config_validation():
