@@ -56,7 +56,7 @@ class SACConfig:
     actor_q: str = "min"  # what the actor maximises: "min" over all N critics (SAC's) or their "mean" (REDQ's)
     critic_grad_penalty: float = 0.0  # lambda: the critics' loss adds lambda * E ||d(sum_i Q_i) / dw||^2 (stored w)
     critic_grad_penalty_start: int = 0  # decisions (summed over envs) observed before the penalty applies
-    priority_exponent: float = 0.0  # prioritised replay: draw a transition with probability ~ |TD error|^this (0: uniform)
+    priority_exponent: float = 0.0  # prioritised replay: P(draw) ~ |TD error|^this (0: uniform draws)
     priority_correction: float = 0.5  # importance weights (N P_i)^-this, over the batch's max, in the critics' loss
 
     def __post_init__(self) -> None:
