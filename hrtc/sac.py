@@ -173,7 +173,7 @@ class ReplayBuffer:
         self.priorities[indices] = priorities
         self.max_priority = max(self.max_priority, float(priorities.max()))
 
-    def state_dict(self) -> dict[str, torch.Tensor | int]:
+    def state_dict(self) -> dict[str, torch.Tensor | int | float]:
         """The filled part in chronological order (oldest first), as tensors (``weights_only`` loads them)."""
         order = (np.arange(self.size) + (self.position if self.size == self.capacity else 0)) % self.capacity
         arrays = {k: torch.from_numpy(getattr(self, k)[order].copy())
@@ -187,8 +187,9 @@ class ReplayBuffer:
         if "discount" not in state:  # saved before n-step targets: every transition was one decision
             state = {**state, "discount": torch.full_like(state["rewards"], float("nan"))}
         self.add(*(np.asarray(state[k][keep].numpy()) for k in _FIELDS))
+        # A buffer saved before prioritised replay has none: its slots keep add()'s priority 1 (drawn soon).
         self.max_priority = float(state.get("max_priority", 1.0))
-        if "priorities" in state:  # saved before prioritised replay: every slot at 1, drawn soon
+        if "priorities" in state:
             self.priorities[: self.size] = state["priorities"][keep].numpy()
 
 
