@@ -28,6 +28,8 @@ SETTINGS = [  # (critic hidden widths, gradient steps per decision, number of cr
     ((128, 128), 2, 2, False),
     ((64, 64), 2, 2, False),
     ((256,), 2, 2, False),
+    ((256, 256), 2, 2, True),  # the default's LayerNorm critics at the root's width (section 21)
+    ((256, 256), 1, 2, True),  # the same, one gradient step per decision
 ]
 
 
@@ -36,6 +38,7 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--steps", type=int, default=200)
     parser.add_argument("--first", type=int, default=len(SETTINGS), help="time only the first N settings")
+    parser.add_argument("--only", type=int, nargs="+", help="time only these settings (indices into SETTINGS)")
     parser.add_argument("--bf16", action="store_true", help="also time each setting with sac.q_bf16")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
@@ -44,7 +47,8 @@ def main() -> None:
     print("| critics | steps per decision | ms per gradient step | ms per decision |")
     print("|---|---|---|---|")
     precisions = (False, True) if args.bf16 else (False,)
-    runs = [(*setting, bf16) for setting in SETTINGS[: args.first] for bf16 in precisions]
+    chosen = [SETTINGS[i] for i in args.only] if args.only else SETTINGS[: args.first]
+    runs = [(*setting, bf16) for setting in chosen for bf16 in precisions]
     for hidden, updates, critics, layer_norm, bf16 in runs:
         torch.manual_seed(0)
         cfg = SACConfig(q_hidden=hidden, updates_per_decision=updates, n_critics=critics, learning_starts=0,
