@@ -315,7 +315,8 @@ def main(argv: list[str]) -> int:
     with (out / "command.txt").open("a") as handle:  # every invocation: a resumed benchmark's runs come from several
         handle.write("python scripts/benchmark.py " + " ".join(argv) + "\n")
     if not args["report_only"]:
-        (out / "machine.txt").write_text(machine_info())  # first: a benchmark stopped early still says where it ran
+        with (out / "machine.txt").open("a") as handle:  # first: a benchmark stopped early still says where it ran;
+            handle.write(machine_info())  # appended, like command.txt: the results of a resumed study come from several
         try:
             runs, errors = execute(specs, results_path, meta, args["backend"], args["ray_address"], args["cpus"],
                                    bool(args["progress"]))  # fmt: skip

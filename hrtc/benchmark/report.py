@@ -526,16 +526,30 @@ def plot_curves(
     plt.close(fig)
 
 
-def _cpu_model() -> str:
-    """The processor's model name where Linux says it (float results of the same seed differ between CPU models),
-    else the architecture."""
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return f"{platform.machine()} {line.split(':', 1)[1].strip()}"
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
+def _cpu_model(cpuinfo: str | None = None) -> str:
+    """The processor where Linux says it: its model name, family and model numbers, and the bfloat16 matrix
+    instructions it has (float results of the same seed differ between CPU models, and a model name such as "AMD
+    EPYC" covers several generations: family 25 is Zen 3-4, 26 Zen 5); else the architecture."""
+    if cpuinfo is None:
+        try:
+            cpuinfo = Path("/proc/cpuinfo").read_text()
+        except OSError:
+            cpuinfo = ""
+    fields: dict[str, str] = {}
+    for line in cpuinfo.splitlines():
+        key, sep, value = line.partition(":")
+        if not sep:
+            if fields:
+                break  # the first processor's block is enough
+            continue
+        fields.setdefault(key.strip(), value.strip())
+    if "model name" not in fields:
+        return platform.processor() or platform.machine()
+    line = f"{platform.machine()} {fields['model name']}"
+    numbers = [f"{name} {fields[key]}" for key, name in (("cpu family", "family"), ("model", "model")) if key in fields]
+    flags = [f for f in ("amx_bf16", "avx512_bf16") if f in fields.get("flags", "").split()]
+    details = ", ".join(numbers) + ("; " if numbers and flags else "") + " ".join(flags)
+    return f"{line} ({details})" if details else line
 
 
 def machine_info() -> str:

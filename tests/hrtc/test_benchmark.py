@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -252,7 +253,24 @@ def test_benchmark_in_a_process_pool_skips_finished_runs(tmp_path: Path) -> None
     assert "## References over the same skills" in (tmp_path / "out" / "table.md").read_text()
     commands = (tmp_path / "out" / "command.txt").read_text().splitlines()
     assert len(commands) == 2 and all(c.startswith("python scripts/benchmark.py task=") for c in commands)
+    machines = (tmp_path / "out" / "machine.txt").read_text().splitlines()  # where each invocation ran, appended
+    assert len(machines) == 2 and all(f"{os.cpu_count()} cores" in m for m in machines)
     assert sorted(again["runs"]) == ["sb3_a2c/seed1", "sb3_a2c/seed2"]
+
+
+def test_machine_line_names_the_cpu_generation_and_its_bfloat16_instructions() -> None:
+    """A model name such as "AMD EPYC" covers CPUs whose float results differ: the line adds family and model."""
+    from hrtc.benchmark.report import _cpu_model
+
+    two = (
+        "processor\t: 0\nmodel name\t: AMD EPYC\ncpu family\t: 26\nmodel\t\t: 2\nflags\t\t: fpu avx512_bf16 avx512vl\n\n"
+        "processor\t: 1\nmodel name\t: AMD EPYC\ncpu family\t: 26\nmodel\t\t: 2\nflags\t\t: fpu avx512_bf16\n"
+    )
+    assert _cpu_model(two).endswith("AMD EPYC (family 26, model 2; avx512_bf16)")
+    xeon = "model name\t: Intel(R) Xeon(R)\ncpu family\t: 6\nmodel\t\t: 143\nflags\t\t: amx_bf16 amx_tile avx512_bf16\n"
+    assert _cpu_model(xeon).endswith("Intel(R) Xeon(R) (family 6, model 143; amx_bf16 avx512_bf16)")
+    assert _cpu_model("model name\t: Some CPU\n").endswith("Some CPU")  # nothing more known: nothing added
+    assert "(" not in _cpu_model("")  # no /proc/cpuinfo: the architecture
 
 
 def test_references_on_every_run_seed_use_the_final_policies_own_episodes() -> None:
