@@ -52,7 +52,8 @@ class SACConfig:
     log_every: int = 250  # decisions between rows of train.csv
     normalize_obs: bool = False  # a replay buffer holds old samples: no drifting normaliser by default
     n_step: int = 1  # decisions summed into each critic target before bootstrapping (1: the one-step target)
-    n_critics: int = 2  # critics Q_1..Q_N; each target takes the min of a random pair of them (REDQ's M = 2)
+    n_critics: int = 2  # critics Q_1..Q_N; each target takes the min of target_min_over of them, drawn at random
+    target_min_over: int = 2  # M of REDQ: the target's min is over M of the N target critics (M = N: all, no draw)
     actor_q: str = "min"  # what the actor maximises: "min" over all N critics (SAC's) or their "mean" (REDQ's)
     critic_grad_penalty: float = 0.0  # lambda: the critics' loss adds lambda * E ||d(sum_i Q_i) / dw||^2 (stored w)
     critic_grad_penalty_start: int = 0  # decisions (summed over envs) observed before the penalty applies
@@ -60,7 +61,7 @@ class SACConfig:
     priority_correction: float = 0.5  # importance weights (N P_i)^-this, over the batch's max, in the critics' loss
 
     def __post_init__(self) -> None:
-        for name in ("batch_size", "buffer_size", "log_every", "n_step", "n_critics", "actor_every"):
+        for name in ("batch_size", "buffer_size", "log_every", "n_step", "n_critics", "target_min_over", "actor_every"):
             value = getattr(self, name)
             if not isinstance(value, int) or isinstance(value, bool) or value < 1:
                 raise ConfigError(f"sac.{name} must be a positive integer, got {value!r}")
@@ -82,6 +83,9 @@ class SACConfig:
             raise ConfigError(f"sac.init_temperature must be > 0, got {self.init_temperature}")
         if self.n_critics < 2:
             raise ConfigError(f"sac.n_critics must be at least 2 (a target is the min of a pair), got {self.n_critics}")
+        if not 2 <= self.target_min_over <= self.n_critics:
+            raise ConfigError(f"sac.target_min_over must be between 2 and sac.n_critics ({self.n_critics}), got "
+                              f"{self.target_min_over}")  # fmt: skip
         if not (np.isfinite(self.critic_grad_penalty) and self.critic_grad_penalty >= 0.0):
             raise ConfigError(f"sac.critic_grad_penalty must be >= 0 and finite, got {self.critic_grad_penalty}")
         if not isinstance(self.q_layer_norm, bool):
@@ -312,12 +316,12 @@ def rsample_with_logp(distribution: object) -> tuple[torch.Tensor, torch.Tensor]
 
 
 def sac_losses(policy: nn.Module, critics: TwinQ, target_critics: TwinQ, batch: ReplayBatch,
-               temperature: float | torch.Tensor, target_pair: tuple[int, int] = (0, 1), actor_q: str = "min",
+               temperature: float | torch.Tensor, target_set: tuple[int, ...] = (0, 1), actor_q: str = "min",
                grad_penalty: float = 0.0) -> dict[str, torch.Tensor]:  # fmt: skip
     """The critics', actor's and master critic's losses on one minibatch, with the actor's log-probabilities.
 
     ``policy`` is an :class:`~hrtc.policy.ActorCritic` (``distribution(obs)``, ``value(obs)``). Every critic fits the
-    soft target on the stored weights, built from the target critics ``target_pair`` (the min of the two); the actor
+    soft target on the stored weights, built from the target critics ``target_set`` (the min over them); the actor
     maximises ``Q(s, w) - temperature log pi(w | s)`` on fresh reparameterised weights, with Q the ``min`` or the
     ``mean`` over all critics (``actor_q``); V(s) fits that soft value. ``grad_penalty`` > 0 adds
     ``grad_penalty * E ||d(sum_i Q_i(s, w)) / dw||^2`` at the stored weights (the Beta samples) to the critics' loss:
@@ -327,9 +331,12 @@ def sac_losses(policy: nn.Module, critics: TwinQ, target_critics: TwinQ, batch: 
     with torch.no_grad():
         next_w, next_logp = rsample_with_logp(policy.distribution(batch.next_obs))
         next_q = target_critics(batch.next_obs, next_w)
-        i, j = target_pair
+        if len(target_set) == 2:
+            next_q1, next_q2 = next_q[target_set[0]], next_q[target_set[1]]
+        else:  # the min over the set, passed twice (min(q, q) = q)
+            next_q1 = next_q2 = next_q[list(target_set)].min(0).values
         target = soft_q_target(
-            batch.rewards, batch.terminated, next_q[i], next_q[j], next_logp, temperature, batch.discount
+            batch.rewards, batch.terminated, next_q1, next_q2, next_logp, temperature, batch.discount
         )
     samples = batch.samples.clone().requires_grad_(True) if grad_penalty > 0 else batch.samples
     q_stored = critics(batch.obs, samples)
@@ -444,12 +451,12 @@ class SACLearner:
         batch = self.buffer.sample(self.cfg.batch_size, self.generator, self.cfg.priority_exponent,
                                    self.cfg.priority_correction)  # fmt: skip
         temperature = self.log_temperature.exp().detach()
-        pair = (0, 1)
-        if self.cfg.n_critics > 2:  # REDQ: a fresh random pair per gradient step (two critics draw nothing)
-            pair = tuple(torch.randperm(self.cfg.n_critics, generator=self.generator)[:2].tolist())
+        chosen = tuple(range(self.cfg.target_min_over))
+        if self.cfg.n_critics > self.cfg.target_min_over:  # REDQ: a fresh random subset per gradient step (M = N: none)
+            chosen = tuple(torch.randperm(self.cfg.n_critics, generator=self.generator)[: len(chosen)].tolist())
         penalty = self.cfg.critic_grad_penalty if self.decisions >= self.cfg.critic_grad_penalty_start else 0.0
-        losses = sac_losses(self.policy, self.critics, self.target_critics, batch, temperature, pair, self.cfg.actor_q,
-                            penalty)  # fmt: skip
+        losses = sac_losses(self.policy, self.critics, self.target_critics, batch, temperature, chosen,
+                            self.cfg.actor_q, penalty)  # fmt: skip
         # Each backward pass accumulates into its own parameters only: the actor's loss never moves the critics.
         # Before actor_starts the critics learn the starting policy's Q; after it the actor (and the temperature) take
         # one step per actor_every critic steps (from actor_every_from decisions on; one per step before). V(s) learns

@@ -263,7 +263,7 @@ def test_machine_line_names_the_cpu_generation_and_its_bfloat16_instructions() -
     from hrtc.benchmark.report import _cpu_model
 
     two = (
-        "processor\t: 0\nmodel name\t: AMD EPYC\ncpu family\t: 26\nmodel\t\t: 2\nflags\t\t: fpu avx512_bf16 avx512vl\n\n"
+        "processor\t: 0\nmodel name\t: AMD EPYC\ncpu family\t: 26\nmodel\t\t: 2\nflags\t\t: fpu avx512_bf16 avx\n\n"
         "processor\t: 1\nmodel name\t: AMD EPYC\ncpu family\t: 26\nmodel\t\t: 2\nflags\t\t: fpu avx512_bf16\n"
     )
     assert _cpu_model(two).endswith("AMD EPYC (family 26, model 2; avx512_bf16)")

@@ -138,8 +138,9 @@ def test_the_actor_loss_never_moves_the_critics():
 
 
 def test_an_ensemble_target_takes_the_min_of_its_pair_and_the_actor_the_min_or_the_mean():
-    """With N critics, the critics' target is the soft target of the chosen pair of target critics only, and the
-    actor's Q is the min (SAC's) or the mean (REDQ's) over all N (checked against each critic evaluated by hand)."""
+    """With N critics, the critics' target is the soft target of the chosen set of target critics only (a pair, or
+    three: REDQ's M), and the actor's Q is the min (SAC's) or the mean (REDQ's) over all N (checked against each
+    critic evaluated by hand)."""
     torch.manual_seed(0)
     policy, critics, target = ActorCritic(4, 3, "beta", (16,)), TwinQ(4, 3, (16,), n=4), TwinQ(4, 3, (16,), n=4)
     buffer = ReplayBuffer(100, 4, 3)
@@ -148,9 +149,10 @@ def test_an_ensemble_target_takes_the_min_of_its_pair_and_the_actor_the_min_or_t
                np.full(50, 0.9))  # fmt: skip
     batch = buffer.sample(32, torch.Generator().manual_seed(0))
     out = {}
-    for pair, actor_q in (((2, 3), "min"), ((0, 2), "mean")):
-        torch.manual_seed(1)  # the same rsampled weights in both calls and below
-        out[actor_q] = sac_losses(policy, critics, target, batch, 0.1, target_pair=pair, actor_q=actor_q)
+    for pair, actor_q in (((2, 3), "min"), ((0, 2), "mean"), ((0, 1, 3), "three")):
+        torch.manual_seed(1)  # the same rsampled weights in every call and below
+        out[actor_q] = sac_losses(policy, critics, target, batch, 0.1, target_set=pair,
+                                  actor_q="min" if actor_q == "three" else actor_q)  # fmt: skip
         torch.manual_seed(1)
         with torch.no_grad():
             next_w = policy.distribution(batch.next_obs).rsample()
@@ -159,6 +161,7 @@ def test_an_ensemble_target_takes_the_min_of_its_pair_and_the_actor_the_min_or_t
         expected = batch.rewards + batch.discount * (next_q.min(0).values - 0.1 * next_logp)
         torch.testing.assert_close(out[actor_q]["target"], expected)
     assert not torch.allclose(out["min"]["target"], out["mean"]["target"])
+    assert not torch.allclose(out["three"]["target"], out["mean"]["target"])  # (0, 1, 3) is not (0, 2)
     assert (out["min"]["q_pi"] < out["mean"]["q_pi"]).all()  # the same rsampled weights: the min of 4 lies below
 
 
@@ -238,6 +241,30 @@ def test_a_learner_with_bf16_critics_takes_float32_gradient_steps():
     assert np.isfinite(learner._row()["losses/q_loss"])
 
 
+@pytest.mark.parametrize(("n_critics", "min_over", "draws"), [(2, 2, False), (3, 3, False), (3, 2, True), (5, 3, True)])
+def test_the_learner_draws_its_target_critics_only_when_it_has_more_than_it_takes(monkeypatch, n_critics, min_over,
+                                                                                   draws):  # fmt: skip
+    """sac.target_min_over = M of sac.n_critics = N: each gradient step's target takes the min over M target
+    critics, a fresh random subset when N > M (REDQ), all of them in order when M = N (no draw from the generator)."""
+    import hrtc.sac as sac_module
+
+    seen: list[tuple[int, ...]] = []
+    real = sac_module.sac_losses
+    monkeypatch.setattr(sac_module, "sac_losses", lambda *a, **k: seen.append(a[5]) or real(*a, **k))
+    cfg = SACConfig(q_hidden=(8,), batch_size=8, learning_starts=0, n_critics=n_critics, target_min_over=min_over)
+    learner = SACLearner(ActorCritic(4, 3, "beta", hidden=(8,)), cfg, 0.95, torch.Generator().manual_seed(0))
+    rng = np.random.default_rng(0)
+    learner.buffer.add(rng.normal(size=(32, 4)).astype(np.float32), rng.random((32, 3), np.float32),
+                       rng.normal(size=32).astype(np.float32), rng.normal(size=(32, 4)).astype(np.float32),
+                       np.zeros(32, np.float32), np.full(32, 0.95, np.float32))  # fmt: skip
+    for _ in range(20):
+        learner._gradient_step()
+    assert all(len(c) == min_over == len(set(c)) and set(c) <= set(range(n_critics)) for c in seen) and len(seen) == 20
+    assert (len(set(seen)) > 1) == draws  # 20 draws of a subset from 3 or 10 possible: not all the same
+    if not draws:
+        assert set(seen) == {tuple(range(n_critics))}
+
+
 @pytest.mark.parametrize("amx", [False, True])
 @pytest.mark.parametrize("avx512_bf16", [False, True])
 def test_bf16_auto_is_on_exactly_where_the_cpu_multiplies_bfloat16_in_hardware(monkeypatch, amx, avx512_bf16):
@@ -271,6 +298,9 @@ def test_bf16_auto_on_this_machine_follows_its_cpu_flags():
     ("key", "value", "message"),
     [
         ("n_critics", 1, "sac.n_critics must be at least 2"),
+        ("target_min_over", 3, r"sac.target_min_over must be between 2 and sac.n_critics \(2\), got 3"),
+        ("target_min_over", 1, r"sac.target_min_over must be between 2 and sac.n_critics \(2\), got 1"),
+        ("target_min_over", 2.0, "sac.target_min_over must be a positive integer"),
         ("actor_q", "max", "sac.actor_q must be 'min' or 'mean'"),
         ("critic_grad_penalty", -0.1, "sac.critic_grad_penalty must be >= 0"),
         ("critic_grad_penalty_start", -1, "sac.critic_grad_penalty_start must be a non-negative integer"),
