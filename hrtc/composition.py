@@ -17,7 +17,7 @@ from typing import Any, Literal, Protocol
 import gymnasium as gym
 import numpy as np
 
-from hrtc.errors import ConfigError, ShapeError, UnknownNameError
+from hrtc.errors import ConfigError, ShapeError, UnknownNameError, interrupt_within
 from hrtc.skill import Skill, SkillOutput
 
 log = logging.getLogger(__name__)
@@ -126,6 +126,8 @@ class SkillSlot:
             action = np.asarray(out.action, dtype=np.float64)
             info = {k: float(v) for k, v in out.info.items()}
         except Exception as error:  # noqa: BLE001  (any failure of the skill's own code is isolated here)
+            if (interrupt := interrupt_within(error)) is not None:
+                raise interrupt from error  # but not Ctrl-C or SIGTERM that a library wrapped: the run stops
             problem = f"raised {type(error).__name__}: {error}"
         elapsed = (time.perf_counter() - start) * 1e3
         if not problem:

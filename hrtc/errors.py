@@ -43,3 +43,18 @@ class RunLockedError(HRTCError):
 
 class WorkerError(HRTCError):
     """Vector-env workers died more often than allowed (see :class:`hrtc.vector.RestartingVectorEnv`)."""
+
+
+def interrupt_within(error: BaseException) -> KeyboardInterrupt | None:
+    """The Ctrl-C (or SIGTERM, which a run turns into one) that a library wrapped in another exception, else None.
+
+    A signal handler raises where the main thread is, which in a skill is mostly inside a solver: CasADi then raises a
+    ``RuntimeError`` whose message ends in the ``KeyboardInterrupt`` (the original is not chained), and a C extension
+    that returns with the interrupt pending raises a ``SystemError`` caused by it. A skill's fallback for a failing
+    solver must not take these for solver failures, or the run would not stop."""
+    seen: BaseException | None = error
+    while seen is not None:
+        if isinstance(seen, KeyboardInterrupt):
+            return seen
+        seen = seen.__cause__ or seen.__context__
+    return KeyboardInterrupt(str(error)) if "KeyboardInterrupt" in str(error) else None

@@ -19,7 +19,7 @@ from typing import Any
 import casadi
 import numpy as np
 
-from hrtc.errors import ConfigError, ShapeError
+from hrtc.errors import ConfigError, ShapeError, interrupt_within
 from hrtc.skill import SkillOutput
 from skills.cartpole_model import CartpoleParams, accelerations
 
@@ -233,7 +233,9 @@ class CartTrackingMPC:
                 lam_x0=lam_x0,
                 lam_g0=lam_g0,
             )
-        except RuntimeError:  # CasADi raises when a function evaluation fails (e.g. NaN in a derivative)
+        except RuntimeError as error:  # CasADi raises when a function evaluation fails (e.g. NaN in a derivative)
+            if (interrupt := interrupt_within(error)) is not None:
+                raise interrupt from error  # Ctrl-C or SIGTERM during the solve: not a solver failure
             solve_ms = 1e3 * (time.perf_counter() - start)
             self._warm = None
             return self._fallback(state, STATUS_NONFINITE_SOLUTION, solve_ms=solve_ms, iterations=0)
@@ -490,7 +492,9 @@ class UprightMPC:
         try:
             result = self._solver(x0=x0, p=state, lbx=self._lbx, ubx=self._ubx, lbg=0.0, ubg=0.0, lam_x0=lam_x0,
                                   lam_g0=lam_g0)  # fmt: skip
-        except RuntimeError:
+        except RuntimeError as error:
+            if (interrupt := interrupt_within(error)) is not None:
+                raise interrupt from error  # Ctrl-C or SIGTERM during the solve: not a solver failure
             self._warm = None
             return self._fallback(STATUS_NONFINITE_SOLUTION, 1e3 * (time.perf_counter() - start), 0)
         solve_ms = 1e3 * (time.perf_counter() - start)

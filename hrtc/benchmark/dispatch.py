@@ -198,8 +198,9 @@ def _pool_jobs(specs: Sequence[RunSpec], fn: Callable, address: str | None, num_
     import multiprocessing
 
     workers = max(1, (num_cpus or os.cpu_count() or 1) // max(s.cpus for s in specs))
-    with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
-        futures = {pool.submit(fn, s): s for s in specs}
+    context = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(workers, mp_context=context, initializer=die_with_parent) as pool:
+        futures = {pool.submit(run_unless_orphaned, fn, s): s for s in specs}
         while futures:
             ready, _ = wait(list(futures), return_when=FIRST_COMPLETED)
             for future in ready:
@@ -208,6 +209,40 @@ def _pool_jobs(specs: Sequence[RunSpec], fn: Callable, address: str | None, num_
                     yield spec, future.result(), None
                 except Exception as error:  # noqa: BLE001
                     yield spec, None, _describe(error)
+
+
+_PARENT: int | None = None  # in a pool worker: the benchmark's pid, recorded by die_with_parent
+
+
+def die_with_parent() -> None:
+    """A pool worker's initializer: on Linux, the kernel sends the worker SIGTERM when the benchmark that started it
+    dies, by ``kill`` or a crash as well as by Ctrl-C (``PR_SET_PDEATHSIG``). A run in progress then stops as a
+    stopped run does (the trainer saves its checkpoint) and :func:`run_unless_orphaned` ends the worker, instead of
+    the run going on with no one to take its result, on a CPU the next benchmark's runs would share. Elsewhere only
+    the parent is recorded."""
+    global _PARENT
+    _PARENT = os.getppid()
+    if not sys.platform.startswith("linux"):
+        return
+    import ctypes
+    import signal
+
+    try:
+        ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGTERM))  # 1: PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        return
+    if os.getppid() != _PARENT:  # the benchmark died before the call above: nothing will signal, so end now
+        os.kill(os.getpid(), signal.SIGTERM)
+
+
+def run_unless_orphaned(fn: Callable[[RunSpec], Any], spec: RunSpec) -> Any:
+    """``fn(spec)`` in a pool worker; if the benchmark died meanwhile, the worker exits once the run has stopped
+    (its checkpoint written): an idle worker of a dead pool would otherwise wait for work forever."""
+    try:
+        return fn(spec)
+    finally:
+        if _PARENT is not None and os.getppid() != _PARENT:
+            os._exit(1)
 
 
 def _describe(error: BaseException) -> str:

@@ -8,6 +8,7 @@ import math
 import os
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -256,6 +257,36 @@ def test_benchmark_in_a_process_pool_skips_finished_runs(tmp_path: Path) -> None
     machines = (tmp_path / "out" / "machine.txt").read_text().splitlines()  # where each invocation ran, appended
     assert len(machines) == 2 and all(f"{os.cpu_count()} cores" in m for m in machines)
     assert sorted(again["runs"]) == ["sb3_a2c/seed1", "sb3_a2c/seed2"]
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="PR_SET_PDEATHSIG is Linux's")
+def test_a_killed_benchmark_takes_its_pool_workers_with_it(tmp_path: Path) -> None:
+    """SIGKILL leaves the benchmark no handler to run: the kernel's death signal still ends its pool worker, whose
+    run then stops as a stopped run does (a checkpoint saved) instead of running on, orphaned."""
+    psutil = pytest.importorskip("psutil")
+    cmd = [sys.executable, str(ROOT / "scripts" / "benchmark.py"), "task=cartpole_swingup", "budget=200000",
+           "eval_every=100000", "eval_episodes=1", "cpus=1", "progress=false", "algos=[hrtc_beta]", "seeds=1",
+           "backend=process", "references=false", f"out={tmp_path / 'out'}",
+           f"runs_dir={tmp_path / 'runs'}"]  # fmt: skip
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=ROOT)
+    workers: list = []
+    try:
+        deadline = time.monotonic() + 180
+        train_csv = tmp_path / "runs" / "hrtc_beta" / "seed1" / "train.csv"
+        while time.monotonic() < deadline and not (train_csv.exists() and len(train_csv.read_text().splitlines()) > 1):
+            assert proc.poll() is None, "the benchmark ended before its run started"
+            time.sleep(0.2)
+        workers = [c for c in psutil.Process(proc.pid).children() if "spawn_main" in " ".join(c.cmdline())]
+        assert len(workers) == 1
+        proc.kill()
+        proc.wait(30)
+        _, alive = psutil.wait_procs(workers, timeout=60)
+        assert not alive, "the pool worker outlived its benchmark"
+    finally:
+        for process in [*workers, psutil.Process(proc.pid)] if proc.poll() is None else workers:
+            if process.is_running():
+                process.kill()  # a failed check leaves nothing running
+    assert list((tmp_path / "runs").rglob("last.pt"))  # SIGTERM in the worker: the trainer's checkpoint on stop
 
 
 def test_machine_line_names_the_cpu_generation_and_its_bfloat16_instructions() -> None:

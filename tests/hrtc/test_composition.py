@@ -176,6 +176,53 @@ def test_non_finite_proposal_falls_back_and_is_counted():
     assert info["skill_faults"][0] >= 1 and info["skills"]["bad"]["fault"] == 1.0
 
 
+class _RaisingSkill:
+    """Raises what a solver library raises when Ctrl-C lands inside it, or a plain failure."""
+
+    state_keys = ()
+
+    def __init__(self, error):
+        self.error = error
+
+    def reset(self, rng):
+        pass
+
+    def act(self, state):
+        raise self.error
+
+
+def _system_error_from_an_interrupt() -> SystemError:
+    try:
+        try:
+            raise KeyboardInterrupt("signal 15")
+        except KeyboardInterrupt as interrupt:
+            raise SystemError("<function DM.__array__> returned a result with an exception set") from interrupt
+    except SystemError as error:
+        return error
+
+
+@pytest.mark.parametrize(
+    "error",
+    [
+        RuntimeError("Error in Function::call for 'mpc' [Sqpmethod] at function.cpp:514:\nKeyboardInterrupt: signal 2"),
+        _system_error_from_an_interrupt(),
+    ],
+    ids=["casadi_runtime_error", "system_error_caused_by_it"],
+)
+def test_an_interrupt_a_library_wrapped_stops_the_run_and_a_failure_falls_back(error):
+    """The skill isolation turns a failing skill into a logged fallback, but Ctrl-C or SIGTERM inside a skill's solver
+    (wrapped by the library into another exception) still reaches the trainer as KeyboardInterrupt."""
+    env = _composed(SkillSlot("mpc", _RaisingSkill(error), KeysFilter(())), diagnostics=True)
+    with pytest.raises(KeyboardInterrupt):  # the first proposals are asked at reset
+        env.reset(seed=0)
+        env.step(np.array([1.0]))
+    failure = _RaisingSkill(RuntimeError("QP infeasible"))
+    failing = _composed(SkillSlot("mpc", failure, KeysFilter(())), diagnostics=True)
+    failing.reset(seed=0)
+    _, _, _, _, info = failing.step(np.array([1.0]))
+    assert info["skills"]["mpc"]["fault"] == 1.0 and info["action"][0] == 0.0
+
+
 def test_build_library_from_config_and_its_errors():
     lib = build_library({"hold": {"skill": {"_target_": "skills.static.StaticIntent", "action": [0.0]}}})
     assert lib.names == ("hold",)

@@ -316,3 +316,37 @@ def test_rejects_bad_state_shape_and_reference() -> None:
         skill.act(np.zeros(5))
     with pytest.raises(ConfigError, match="x_ref"):
         skill.set_reference(-3.0)
+
+
+def test_ctrl_c_during_a_solve_stops_the_caller_instead_of_a_fallback() -> None:
+    """CasADi turns a KeyboardInterrupt raised by a signal handler during a solve into a RuntimeError; the skill must
+    raise it again (a run's Ctrl-C or SIGTERM lands in the MPC most of the time), not return a fallback. A timer
+    interrupts a loop of solves 30 times at varied points."""
+    import signal
+
+    skill = CartTrackingMPC()
+    skill.reset(np.random.default_rng(0))
+    rng = np.random.default_rng(0)
+    states = [np.array([0.5, 3.0, 0.0, 0.0]) + rng.normal(0.0, 0.3, 4) for _ in range(40)]
+    assert all(skill.act(s).info["status"] == STATUS_OK for s in states)  # undisturbed, every solve converges
+
+    def interrupt(signum: int, frame: Any) -> None:
+        raise KeyboardInterrupt(f"signal {signum}")
+
+    previous = signal.signal(signal.SIGALRM, interrupt)
+    statuses, surfaced = [], 0
+    try:
+        for trial in range(30):
+            try:
+                signal.setitimer(signal.ITIMER_REAL, 0.001 + 0.0003 * trial)
+                for state in states * 5:
+                    statuses.append(skill.act(state).info["status"])
+            except KeyboardInterrupt:
+                surfaced += 1
+            except SystemError as error:  # a C extension returned with the interrupt pending: it is the cause
+                surfaced += isinstance(error.__cause__, KeyboardInterrupt)
+            finally:
+                signal.setitimer(signal.ITIMER_REAL, 0.0)
+    finally:
+        signal.signal(signal.SIGALRM, previous)
+    assert surfaced == 30 and set(statuses) == {STATUS_OK}
