@@ -323,22 +323,32 @@ class Progress(BaseCallback):
 # --------------------------------------------------------------------------------------------------- signals
 class TerminateAsInterrupt(BaseCallback):
     """SIGTERM (``kill``) ends the run as Ctrl-C does: a checkpoint is saved (:class:`Checkpoints`) and the run
-    stops with :class:`KeyboardInterrupt`. The previous handler is back when the run ends."""
+    stops with :class:`KeyboardInterrupt`. Either signal is also remembered, and raised again at the end of the step
+    it came in: a library that swallowed the first raise (CasADi does, ~5 % of the time, inside a solve) cannot keep
+    the run going. The previous handlers are back when the run ends."""
+
+    SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
     def __init__(self) -> None:
-        self.previous: Any = None
+        self.previous: dict[int, Any] = {}
+        self.pending: int | None = None
 
     def on_start(self, run: Run) -> None:
-        self.previous = signal.signal(signal.SIGTERM, _interrupt)
+        self.pending = None
+        self.previous = {signum: signal.signal(signum, self._interrupt) for signum in self.SIGNALS}
+
+    def on_step(self, run: Run, step: Transition) -> None:
+        if self.pending is not None:
+            raise KeyboardInterrupt(f"signal {self.pending}")
 
     def on_end(self, run: Run, interrupted: bool) -> None:
-        if self.previous is not None:
-            signal.signal(signal.SIGTERM, self.previous)
-            self.previous = None
+        for signum, previous in self.previous.items():
+            signal.signal(signum, previous)
+        self.previous, self.pending = {}, None
 
-
-def _interrupt(signum: int, frame: Any) -> None:
-    raise KeyboardInterrupt(f"signal {signum}")
+    def _interrupt(self, signum: int, frame: Any) -> None:
+        self.pending = signum
+        raise KeyboardInterrupt(f"signal {signum}")
 
 
 # --------------------------------------------------------------------------------------------------- recording

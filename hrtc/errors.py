@@ -51,7 +51,9 @@ def interrupt_within(error: BaseException) -> KeyboardInterrupt | None:
     A signal handler raises where the main thread is, which in a skill is mostly inside a solver: CasADi then raises a
     ``RuntimeError`` whose message ends in the ``KeyboardInterrupt`` (the original is not chained), and a C extension
     that returns with the interrupt pending raises a ``SystemError`` caused by it. A skill's fallback for a failing
-    solver must not take these for solver failures, or the run would not stop."""
+    solver must not take these for solver failures, or the run would not stop. (A few CasADi swallows whole, returning
+    as if none came: the run's signal callback, ``hrtc.callbacks.TerminateAsInterrupt``, raises those again at the end
+    of the step.)"""
     seen: BaseException | None = error
     while seen is not None:
         if isinstance(seen, KeyboardInterrupt):

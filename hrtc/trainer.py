@@ -36,7 +36,7 @@ from hrtc.callbacks import (
 from hrtc.checkpoint import load_checkpoint, load_policy_weights, plain, rng_state, save_checkpoint, set_rng_state
 from hrtc.config import RunConfig
 from hrtc.environments import env_factory, frame_source, no_update, step_while, timed, vector_env
-from hrtc.errors import CheckpointError, WorkerError
+from hrtc.errors import CheckpointError, WorkerError, interrupt_within
 from hrtc.learner import Step, build_learner
 from hrtc.logging import CsvSink, Sink
 from hrtc.normalize import ObsNormalizer, RewardScaler, normalize_obs
@@ -160,6 +160,12 @@ class Trainer:
             self.global_step, self.episodes = committed
             self.save()
             raise WorkerError(f"{error}; the run is saved at step {self.global_step}") from None
+        except Exception as error:  # Ctrl-C or SIGTERM that a C extension turned into a SystemError is still one
+            if (interrupt := interrupt_within(error)) is None:
+                raise
+            self.global_step, self.episodes = committed
+            interrupted = True
+            raise interrupt from error
         finally:
             try:
                 for callback in reversed(self.callbacks):

@@ -33,6 +33,36 @@ def test_resume_continues_the_csvs_and_the_step_count(tmp_path):
     assert load_checkpoint(tmp_path / "checkpoints" / "last.pt")["global_step"] == 2000
 
 
+class _InterruptAsSystemError:
+    """What a C extension does when Ctrl-C lands in it: returns with the interrupt pending, which Python raises as a
+    SystemError caused by the KeyboardInterrupt."""
+
+    def on_start(self, run):
+        pass
+
+    def on_step(self, run, step):
+        if run.global_step >= 750:
+            try:
+                raise KeyboardInterrupt("signal 15")
+            except KeyboardInterrupt as interrupt:
+                raise SystemError("<built-in method step> returned a result with an exception set") from interrupt
+
+    def on_update(self, run, stats):
+        pass
+
+    def on_end(self, run, interrupted):
+        pass
+
+
+def test_an_interrupt_wrapped_in_a_system_error_still_saves_and_stops_the_run(tmp_path):
+    trainer = Trainer(_cfg(5000, checkpoint_every=100_000), tmp_path)
+    trainer.callbacks.append(_InterruptAsSystemError())
+    with pytest.raises(KeyboardInterrupt, match="signal 15"):
+        trainer.train()
+    # saved as on Ctrl-C: at the last finished update (500 env steps each), before the interrupted one
+    assert load_checkpoint(tmp_path / "checkpoints" / "last.pt")["global_step"] == 500
+
+
 def _draws() -> tuple:
     import random
 
