@@ -324,7 +324,7 @@ class Progress(BaseCallback):
 class TerminateAsInterrupt(BaseCallback):
     """SIGTERM (``kill``) ends the run as Ctrl-C does: a checkpoint is saved (:class:`Checkpoints`) and the run
     stops with :class:`KeyboardInterrupt`. Either signal is also remembered, and raised again at the end of the step
-    it came in: a library that swallowed the first raise (CasADi does, ~5 % of the time, inside a solve) cannot keep
+    it came in: a library that swallowed the first raise (CasADi does to 5-20 % inside a solve) cannot keep
     the run going. The previous handlers are back when the run ends."""
 
     SIGNALS = (signal.SIGINT, signal.SIGTERM)

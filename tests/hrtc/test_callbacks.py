@@ -271,7 +271,7 @@ def test_sigterm_interrupts_like_ctrl_c_until_the_run_ends(signum):
 
 
 def test_a_signal_whose_interrupt_a_library_swallowed_stops_the_run_at_the_end_of_its_step():
-    """What CasADi does to ~5 % of interrupts inside a solve: catches the KeyboardInterrupt and returns normally. The
+    """What CasADi does to 5-20 % of interrupts inside a solve: catches the KeyboardInterrupt and returns normally. The
     signal was remembered, so the step's end raises it again; a new run starts with nothing pending."""
     callback = TerminateAsInterrupt()
     callback.on_start(FakeRun())
