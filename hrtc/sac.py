@@ -331,12 +331,9 @@ def sac_losses(policy: nn.Module, critics: TwinQ, target_critics: TwinQ, batch: 
     with torch.no_grad():
         next_w, next_logp = rsample_with_logp(policy.distribution(batch.next_obs))
         next_q = target_critics(batch.next_obs, next_w)
-        if len(target_set) == 2:
-            next_q1, next_q2 = next_q[target_set[0]], next_q[target_set[1]]
-        else:  # the min over the set, passed twice (min(q, q) = q)
-            next_q1 = next_q2 = next_q[list(target_set)].min(0).values
+        next_min = next_q[list(target_set)].min(0).values  # passed as both of the target's pair: min(q, q) = q
         target = soft_q_target(
-            batch.rewards, batch.terminated, next_q1, next_q2, next_logp, temperature, batch.discount
+            batch.rewards, batch.terminated, next_min, next_min, next_logp, temperature, batch.discount
         )
     samples = batch.samples.clone().requires_grad_(True) if grad_penalty > 0 else batch.samples
     q_stored = critics(batch.obs, samples)
