@@ -63,14 +63,15 @@ class Learner(Protocol):
 
 
 def build_learner(name: str, settings: Any, policy: Any, num_envs: int, total_steps: int, steps_per_decision: int,
-                  generator: Any) -> Learner:  # fmt: skip
+                  generator: Any, weight_margin: float = 0.0) -> Learner:  # fmt: skip
     """Learner ``name`` (``ppo`` or ``sac``) with its ``settings`` block for ``policy``, on ``num_envs`` envs for a
-    run of ``total_steps`` env steps; it discounts per decision (``gamma ** steps_per_decision``)."""
+    run of ``total_steps`` env steps; it discounts per decision (``gamma ** steps_per_decision``). ``weight_margin``:
+    the composed env's weight span beyond [0, 1] (SAC's start search sets the actor's means in it)."""
     from hrtc.ppo import PPOLearner
     from hrtc.sac import SACLearner
 
     gamma = settings.gamma**steps_per_decision
     if name == "sac":
-        return SACLearner(policy, settings, gamma, generator)
+        return SACLearner(policy, settings, gamma, generator, weight_margin)
     num_updates = -(-total_steps // (settings.num_steps * num_envs * steps_per_decision))
     return PPOLearner(policy, settings, num_envs, gamma, num_updates, generator)

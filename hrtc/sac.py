@@ -59,13 +59,15 @@ class SACConfig:
     critic_grad_penalty_start: int = 0  # decisions (summed over envs) observed before the penalty applies
     priority_exponent: float = 0.0  # prioritised replay: P(draw) ~ |TD error|^this (0: uniform draws)
     priority_correction: float = 0.5  # importance weights (N P_i)^-this, over the batch's max, in the critics' loss
+    start_search: int = 0  # constant corner blends tried by successive halving before the actor moves (0: none)
 
     def __post_init__(self) -> None:
         for name in ("batch_size", "buffer_size", "log_every", "n_step", "n_critics", "target_min_over", "actor_every"):
             value = getattr(self, name)
             if not isinstance(value, int) or isinstance(value, bool) or value < 1:
                 raise ConfigError(f"sac.{name} must be a positive integer, got {value!r}")
-        for name in ("learning_starts", "actor_starts", "actor_every_from", "critic_grad_penalty_start"):
+        for name in ("learning_starts", "actor_starts", "actor_every_from", "critic_grad_penalty_start",
+                     "start_search"):  # fmt: skip
             value = getattr(self, name)
             if not isinstance(value, int) or isinstance(value, bool) or value < 0:
                 raise ConfigError(f"sac.{name} must be a non-negative integer, got {value!r}")
@@ -96,6 +98,8 @@ class SACConfig:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 <= value <= 1.0:
                 raise ConfigError(f"sac.{name} must be a number in [0, 1], got {value!r}")
+        if self.start_search == 1:
+            raise ConfigError("sac.start_search needs at least 2 candidate blends to choose from (0: no search), got 1")
         if self.actor_q not in ("min", "mean"):
             raise ConfigError(f"sac.actor_q must be 'min' or 'mean', got {self.actor_q!r}")
         if not self.q_hidden or any(int(h) < 1 for h in self.q_hidden):
@@ -236,6 +240,103 @@ class NStepAccumulator:
         self.pending = [[(o.numpy(), w.numpy(), float(r)) for o, w, r in queue] for queue in state.get("pending", [])]
 
 
+# --------------------------------------------------------------------------------------------------- start search
+class BlendSearch:
+    """Successive halving over constant blends, one episode per play: the fixed weights the actor starts from.
+
+    The candidates are the start (every sample 0.5: the untrained blend's mean) and ``n - 1`` distinct corners of the
+    sample cube (each sample 0 or 1, so each weight is exactly 0 or 1 whatever the weight span), drawn at random (all
+    of them where there are fewer). Round one plays every candidate for one episode; each later round plays the better
+    half, by mean return over its episodes so far, once more, until one is left (``2n - 2`` episodes for n a power of
+    two). An env with nothing to play while a round's last episodes finish acts with the policy.
+
+    :meth:`override` puts the candidates' samples in place of the policy's; :meth:`observe` takes each decision's
+    rewards and episode ends. ``winner`` is the chosen candidate's index (None while searching)."""
+
+    def __init__(self, n: int, k: int, generator: torch.Generator) -> None:
+        if k <= 20:  # every nonzero corner is a number in [1, 2^k): a draw without replacement
+            codes = (torch.randperm(2**k - 1, generator=generator)[: n - 1] + 1).numpy()
+            bits = (codes[:, None] >> np.arange(k)[None, :]) & 1
+        else:  # too many to enumerate: random ones (a repeat is only a wasted candidate)
+            bits = torch.randint(0, 2, (n - 1, k), generator=generator).numpy()
+        self.candidates = np.vstack([np.full((1, k), 0.5), bits]).astype(np.float32)
+        self.returns: list[list[float]] = [[] for _ in range(len(self.candidates))]
+        self.alive = list(range(len(self.candidates)))  # the round's candidates
+        self.queue = list(self.alive)  # what the round has yet to start
+        self.pending = len(self.queue)  # what the round has yet to finish
+        self.playing = np.zeros(0, np.int64)  # per env: a candidate, -1 the policy, -2 at an episode's start
+        self.episode_return = np.zeros(0)
+        self.winner: int | None = None
+
+    def mean(self, candidate: int) -> float:
+        return float(np.mean(self.returns[candidate])) if self.returns[candidate] else float("nan")
+
+    def _grow(self, n: int) -> None:
+        if len(self.playing) < n:
+            extra = n - len(self.playing)
+            self.playing = np.concatenate([self.playing, np.full(extra, -2, np.int64)])
+            self.episode_return = np.concatenate([self.episode_return, np.zeros(extra)])
+
+    def override(self, samples: np.ndarray) -> np.ndarray:
+        """``samples`` (N, K) with the candidates' in place of the policy's for the envs playing one."""
+        self._grow(len(samples))
+        for i in range(len(samples)):
+            if self.playing[i] == -2:
+                self.playing[i] = self.queue.pop(0) if self.queue and self.winner is None else -1
+        playing = self.playing[: len(samples)]
+        out = samples.copy()
+        out[playing >= 0] = self.candidates[playing[playing >= 0]]
+        return out
+
+    def observe(self, rewards: np.ndarray, ended: np.ndarray) -> None:
+        self._grow(len(rewards))
+        self.episode_return[: len(rewards)] += rewards
+        for i in np.flatnonzero(ended):
+            if (candidate := int(self.playing[i])) >= 0:
+                self.returns[candidate].append(float(self.episode_return[i]))
+                self.pending -= 1
+            self.playing[i], self.episode_return[i] = -2, 0.0
+            if self.pending == 0 and self.winner is None:
+                self._next_round()
+
+    def _next_round(self) -> None:
+        ranked = sorted(self.alive, key=lambda c: (-self.mean(c), c))
+        self.alive = ranked[: max(1, len(ranked) // 2)]
+        if len(self.alive) == 1:
+            self.winner = self.alive[0]
+        else:
+            self.queue, self.pending = list(self.alive), len(self.alive)
+
+    def restart_episodes(self) -> None:
+        """The envs were reset (a resumed run): the candidates they were playing go back to the round's queue."""
+        for candidate in self.playing[self.playing >= 0]:
+            self.queue.insert(0, int(candidate))
+        self.playing[:], self.episode_return[:] = -2, 0.0
+
+    def state_dict(self) -> dict[str, Any]:
+        return {"candidates": torch.from_numpy(self.candidates.copy()), "returns": [list(r) for r in self.returns],
+                "alive": list(self.alive), "queue": list(self.queue), "pending": self.pending,
+                "playing": self.playing.tolist(), "episode_return": self.episode_return.tolist(),
+                "winner": self.winner}  # fmt: skip
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.candidates = state["candidates"].numpy().astype(np.float32)
+        self.returns = [list(r) for r in state["returns"]]
+        self.alive, self.queue, self.pending = list(state["alive"]), list(state["queue"]), int(state["pending"])
+        self.playing = np.asarray(state["playing"], np.int64)
+        self.episode_return = np.asarray(state["episode_return"], np.float64)
+        self.winner = state["winner"]
+
+    def label(self, candidate: int) -> str:
+        """A candidate's weights as a string, e.g. ``011010`` (``s``: the start's 0.5)."""
+        return "".join("s" if v == 0.5 else str(int(v)) for v in self.candidates[candidate])
+
+    def summary(self) -> str:
+        """Every candidate by mean return, with its episode count: ``011010 261.5 (4), ...``."""
+        order = sorted(range(len(self.candidates)), key=lambda c: -self.mean(c) if self.returns[c] else np.inf)
+        return ", ".join(f"{self.label(c)} {self.mean(c):.1f} ({len(self.returns[c])})" for c in order)
+
+
 # --------------------------------------------------------------------------------------------------- networks
 def cpu_has_bf16_matmul() -> bool:
     """Whether this CPU multiplies bfloat16 matrices in hardware: Intel's AMX tiles or AVX-512 BF16 (AMD Zen 4 has
@@ -371,13 +472,20 @@ class SACLearner:
         cfg: the SAC settings.
         gamma: the discount per decision (``cfg.gamma ** decision_every``).
         generator: draws the replay minibatches.
+        weight_margin: the composed env's weight span beyond [0, 1] (where a start search puts the actor's means).
+
+    With ``start_search`` n > 0 the first episodes play constant blends instead (:class:`BlendSearch`; the actor and
+    the temperature held, the critics learning from them); the actor then starts at the blend that won.
     """
 
     update_while_stepping = True
     columns = SAC_COLUMNS
 
-    def __init__(self, policy: nn.Module, cfg: SACConfig, gamma: float, generator: torch.Generator) -> None:
+    def __init__(self, policy: nn.Module, cfg: SACConfig, gamma: float, generator: torch.Generator,
+                 weight_margin: float = 0.0) -> None:  # fmt: skip
         import copy
+
+        from hrtc.distributions import BetaHead
 
         # ``policy`` is the run's: what evaluations, checkpoints and exports use. With policy_tau < 1 it is a Polyak
         # average of the trained policy (self.policy, which acts and learns); with 1 it is the trained policy itself.
@@ -407,6 +515,16 @@ class SACLearner:
         self._since_row = 0  # decisions since the last train.csv row
         self._sums: torch.Tensor | None = None  # sums of the _SUMMED statistics over the row's gradient steps
         self._steps_in_row = 0
+        self.weight_margin = float(weight_margin)
+        self.search: BlendSearch | None = None
+        if cfg.start_search:
+            if not isinstance(getattr(policy, "actor_head", None), BetaHead):
+                raise ConfigError("sac.start_search needs the Beta meta-policy (algo=hrtc dist=beta)")
+            self.search = BlendSearch(cfg.start_search, k, generator)
+
+    @property
+    def searching(self) -> bool:
+        return self.search is not None and self.search.winner is None
 
     @torch.no_grad()
     def act(self, obs: np.ndarray) -> tuple[np.ndarray, object]:
@@ -414,18 +532,38 @@ class SACLearner:
             self.policy.load_state_dict(self.evaluated.state_dict())
             self._synced = True
         distribution = self.policy.distribution(torch.as_tensor(obs))
-        return distribution.sample().numpy(), distribution
+        samples = distribution.sample().numpy()
+        return (self.search.override(samples) if self.searching else samples), distribution  # type: ignore[union-attr]
 
     def observe(self, step: Any) -> None:
         completed = self.accumulator.push(step.obs, step.samples, step.rewards, step.next_obs, step.terminated,
                                           step.truncated)  # fmt: skip
         if completed is not None:
             self.buffer.add(*completed)
+        if self.searching:
+            self.search.observe(step.rewards, step.terminated | step.truncated)  # type: ignore[union-attr]
+            if not self.searching:
+                self._start_at_winner()
         n = len(step.rewards)
         self.decisions += n
         self._since_row += n
         if self.decisions >= self.cfg.learning_starts:
             self._credit += n * self.cfg.updates_per_decision
+
+    def _start_at_winner(self) -> None:
+        """The actor's Beta means at the winning blend (the policy unchanged where the start won)."""
+        search = self.search
+        assert search is not None and search.winner is not None
+        log.info("sac.start_search: %s won (weights in the order of the skills; s: the start's 0.5); by mean return "
+                 "(episodes): %s", search.label(search.winner), search.summary())  # fmt: skip
+        samples = search.candidates[search.winner]
+        if np.all(samples == 0.5):
+            return
+        m = self.weight_margin
+        weights = np.clip((1.0 + 2.0 * m) * samples - m, 0.0, 1.0)
+        means = torch.as_tensor(np.clip((weights + m) / (1.0 + 2.0 * m), 0.05, 0.95), dtype=torch.float32)
+        for policy in {id(p): p for p in (self.policy, self.evaluated)}.values():
+            policy.actor_head.start_at(means)
 
     @property
     def at_boundary(self) -> bool:
@@ -459,7 +597,8 @@ class SACLearner:
         # one step per actor_every critic steps (from actor_every_from decisions on; one per step before). V(s) learns
         # on every step.
         every = self.cfg.actor_every if self.decisions >= self.cfg.actor_every_from else 1
-        actor_moves = self.decisions >= self.cfg.actor_starts and self.gradient_steps % every == 0
+        actor_moves = (self.decisions >= self.cfg.actor_starts and not self.searching
+                       and self.gradient_steps % every == 0)  # fmt: skip
         self.actor_optimizer.zero_grad()
         policy_loss = losses["actor"] + losses["value"] if actor_moves else losses["value"]
         policy_loss.backward(inputs=list(self.policy.parameters()))
@@ -505,6 +644,7 @@ class SACLearner:
             "counters": {"decisions": self.decisions, "gradient_steps": self.gradient_steps, "credit": self._credit,
                          "since_row": self._since_row},
             **({"trained_policy": self.policy.state_dict()} if self.evaluated is not self.policy else {}),
+            **({"start_search": self.search.state_dict()} if self.search is not None else {}),
         }  # fmt: skip
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
@@ -523,3 +663,6 @@ class SACLearner:
         if self.evaluated is not self.policy:  # else a checkpoint without it (policy_tau was 1): the evaluated one
             self.policy.load_state_dict(state.get("trained_policy", self.evaluated.state_dict()))
             self._synced = True
+        if self.search is not None and "start_search" in state:
+            self.search.load_state_dict(state["start_search"])
+            self.search.restart_episodes()  # a resumed run resets its envs

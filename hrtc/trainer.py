@@ -71,7 +71,7 @@ class Trainer:
                                    cfg.encoder, cfg.activation, cfg.weight_init, cfg.policy_device)  # fmt: skip
         self.steps_per_decision = cfg.steps_per_decision  # the learner discounts per decision accordingly
         self.learner = build_learner(cfg.learner, cfg.learner_settings, self.policy, cfg.num_envs, cfg.steps,
-                                     self.steps_per_decision, self.generator)  # fmt: skip
+                                     self.steps_per_decision, self.generator, cfg.weight_margin)  # fmt: skip
         self.normalizer = ObsNormalizer((obs_dim,)) if cfg.learner_settings.normalize_obs else None
         self.global_step, self.update, self.episodes = 0, 0, 0
         self.best_eval, self.last_eval = -np.inf, float("nan")

@@ -16,6 +16,7 @@ from hrtc.distributions import BetaDistribution
 from hrtc.learner import Step
 from hrtc.policy import ActorCritic
 from hrtc.sac import (
+    BlendSearch,
     NStepAccumulator,
     ReplayBatch,
     ReplayBuffer,
@@ -642,6 +643,138 @@ def test_the_trained_copy_starts_from_the_runs_starting_weights_and_resumes_from
         assert torch.equal(a, b)
     assert not all(torch.equal(a, b) for a, b in zip(fresh.policy.parameters(), fresh_policy.parameters(),
                                                      strict=True))  # fmt: skip
+
+
+# --------------------------------------------------------------------------------------------------- start search
+def _play(search: BlendSearch, value, n_envs: int = 2, max_steps: int = 1_000) -> list[int]:
+    """Plays episodes of one decision each until the search ends: candidate c's episode returns ``value(c)``.
+    Returns the candidates in the order their episodes started (-1: the policy's)."""
+    started = []
+    for _ in range(max_steps):
+        if search.winner is not None:
+            return started
+        samples = search.override(np.full((n_envs, search.candidates.shape[1]), 0.25, np.float32))
+        playing = [int(c) for c in search.playing[:n_envs]]
+        started += playing
+        for i, c in enumerate(playing):
+            expected = search.candidates[c] if c >= 0 else np.full(search.candidates.shape[1], 0.25)
+            np.testing.assert_array_equal(samples[i], expected)
+        search.observe(np.array([value(c) if c >= 0 else -1e9 for c in playing]), np.ones(n_envs, bool))
+    raise AssertionError("the search did not end")
+
+
+def test_start_search_candidates_are_the_start_and_distinct_nonzero_corners():
+    search = BlendSearch(16, 6, torch.Generator().manual_seed(0))
+    assert search.candidates.shape == (16, 6)
+    np.testing.assert_array_equal(search.candidates[0], 0.5)  # the untrained blend's mean
+    corners = search.candidates[1:]
+    assert set(np.unique(corners)) <= {0.0, 1.0} and corners.sum(axis=1).min() >= 1
+    assert len({tuple(c) for c in corners}) == 15
+    every = BlendSearch(16, 2, torch.Generator().manual_seed(0))  # fewer corners than asked: all three of them
+    assert sorted(map(tuple, every.candidates[1:])) == [(0.0, 1.0), (1.0, 0.0), (1.0, 1.0)]
+
+
+def test_start_search_halves_to_the_best_candidate_in_2n_minus_2_episodes():
+    """With each candidate's return fixed, successive halving keeps the better half each round and ends with the best:
+    16 + 8 + 4 + 2 episodes of candidates; no candidate is started twice within a round."""
+    search = BlendSearch(16, 6, torch.Generator().manual_seed(1))
+    score = dict(enumerate(np.random.default_rng(0).permutation(16).astype(float)))
+    started = _play(search, score.get)
+    played = [c for c in started if c >= 0]
+    assert len(played) == 30
+    assert search.winner == max(score, key=score.get)
+    assert [len(r) for r in search.returns] == [1 + (score[c] >= 8) + (score[c] >= 12) + (score[c] >= 14)
+                                                for c in range(16)]  # fmt: skip
+
+
+def test_start_search_ranks_by_the_mean_over_a_candidates_episodes():
+    """A candidate lucky in its first episode but worse on average loses the later rounds."""
+    search = BlendSearch(4, 3, torch.Generator().manual_seed(0))
+    counts = [0] * 4
+    means = {0: 1.0, 1: 5.0, 2: 3.0, 3: 0.0}
+
+    def value(c: int) -> float:  # candidate 2 scores 10 in its first episode, then 0: mean 5, then 3.3
+        counts[c] += 1
+        return (10.0 if counts[c] == 1 else 0.0) if c == 2 else means[c]
+
+    _play(search, value, n_envs=1)
+    assert search.winner == 1 and search.returns[2] == [10.0, 0.0]
+
+
+def test_an_env_with_nothing_left_in_the_round_acts_with_the_policy_and_a_resume_replays_what_was_cut():
+    search = BlendSearch(2, 1, torch.Generator().manual_seed(0))  # the start and the one corner
+    samples = search.override(np.full((3, 1), 0.25, np.float32))
+    assert list(search.playing) == [0, 1, -1] and samples[2, 0] == np.float32(0.25)
+    search.observe(np.array([1.0, 2.0, 0.0]), np.array([True, False, True]))
+    state = copy.deepcopy(search.state_dict())
+    resumed = BlendSearch(2, 1, torch.Generator().manual_seed(5))
+    resumed.load_state_dict(state)
+    resumed.restart_episodes()  # env 1's episode of candidate 1 was cut by the resume: it is played again
+    resumed.override(np.zeros((2, 1), np.float32))
+    assert list(resumed.playing[:2]) == [1, -1] and resumed.winner is None
+    resumed.observe(np.array([3.0, 0.0]), np.array([True, False]))
+    assert resumed.winner == 1 and resumed.returns == [[1.0], [3.0]]
+
+
+@pytest.mark.parametrize("margin", [0.0, 0.25])
+def test_the_learner_holds_the_actor_while_searching_then_starts_it_at_the_winning_blend(margin):
+    """While the search runs the learner's samples are the candidates', the critics learn and the actor stays; once
+    it ends, the Beta means (and the Polyak-averaged policy's) give the winning corner's weights on the env's span."""
+    torch.manual_seed(0)
+    policy = ActorCritic(2, 3, "beta", (8,))
+    cfg = SACConfig(batch_size=4, learning_starts=2, q_hidden=(8,), log_every=1000, start_search=4, policy_tau=0.5)
+    learner = SACLearner(policy, cfg, 0.9, torch.Generator().manual_seed(0), weight_margin=margin)
+    actor = [p.detach().clone() for p in learner._actor_parameters]
+    critics = [p.detach().clone() for p in learner.critics.parameters()]
+    search = learner.search
+    best = 1 + int(np.argmax(search.candidates[1:].sum(axis=1)))  # the corner with the most weights up wins
+    obs = np.zeros((2, 2), np.float32)
+    while learner.searching:
+        samples, _ = learner.act(obs)
+        rewards = np.array([10.0 if (s == search.candidates[best]).all() else 0.0 for s in samples])
+        learner.observe(Step(obs, samples, rewards, obs, np.ones(2, bool), np.zeros(2, bool)))
+        learner.update()
+        if learner.searching:
+            assert all(torch.equal(a, p) for a, p in zip(actor, learner._actor_parameters, strict=True))
+    assert search.winner == best and learner.gradient_steps > 0
+    assert not all(torch.equal(a, p) for a, p in zip(critics, learner.critics.parameters(), strict=True))
+    weights = np.clip((1 + 2 * margin) * search.candidates[best] - margin, 0, 1)  # 0 or 1
+    for net in (learner.policy, policy):
+        mean = net.distribution(torch.zeros(1, 2)).mode().detach().numpy()[0]
+        applied = np.clip(-margin + (1 + 2 * margin) * mean, 0, 1)
+        np.testing.assert_allclose(applied, weights, atol=0.06 if margin == 0 else 1e-3)
+
+
+def test_a_run_with_a_start_search_resumes_it_and_plays_each_of_its_episodes_on_the_composed_env(tmp_path, caplog):
+    """The real Trainer on the switch line: a run stopped mid-search resumes it from its checkpoint (the episodes the
+    stop cut are played again), the search ends with one winner, and every candidate's episodes are the env's 25
+    steps of -|x| (each a return in [-50, 0])."""
+    from hrtc.checkpoint import load_checkpoint
+
+    def cfg(steps: int) -> RunConfig:
+        return RunConfig(task=SWITCH_TASK, skills=SWITCH_SKILLS, learner="sac", seed=0, steps=steps, num_envs=2,
+                         vector="sync", eval_every=50, eval_episodes=2, progress=False, hidden=(8,),
+                         sac=SACConfig(q_hidden=(8,), batch_size=8, learning_starts=20, start_search=4))  # fmt: skip
+
+    Trainer(cfg(60), tmp_path).train()  # 30 decisions of 2 envs: two episodes of round one done, two cut at 5 steps
+    search = load_checkpoint(tmp_path / "checkpoints" / "last.pt")["optimizer"]["start_search"]
+    assert search["winner"] is None and sum(map(len, search["returns"])) == 2
+    with caplog.at_level("INFO", logger="hrtc.sac"):
+        Trainer(cfg(400), tmp_path, resume=True).train()
+    search = load_checkpoint(tmp_path / "checkpoints" / "last.pt")["optimizer"]["start_search"]
+    assert search["winner"] is not None and [len(r) for r in search["returns"]].count(0) == 0
+    assert sum(map(len, search["returns"])) == 4 + 2  # round one (4) and the final pair (2): none played twice
+    assert all(-50.0 <= r <= 0.0 for returns in search["returns"] for r in returns)
+    assert any("sac.start_search:" in record.message and "won" in record.message for record in caplog.records)
+
+
+def test_start_search_settings_are_checked():
+    with pytest.raises(Exception, match="at least 2 candidate"):
+        SACConfig(start_search=1)
+    with pytest.raises(Exception, match="sac.start_search must be a non-negative integer"):
+        SACConfig(start_search=-3)
+    with pytest.raises(Exception, match="needs the Beta meta-policy"):
+        SACLearner(ActorCritic(2, 2, "normal", (8,)), SACConfig(start_search=4), 0.9, torch.Generator())
 
 
 # --------------------------------------------------------------------------------------------------- learning
