@@ -60,6 +60,7 @@ class SACConfig:
     priority_exponent: float = 0.0  # prioritised replay: P(draw) ~ |TD error|^this (0: uniform draws)
     priority_correction: float = 0.5  # importance weights (N P_i)^-this, over the batch's max, in the critics' loss
     start_search: int = 0  # constant corner blends tried by successive halving before the actor moves (0: none)
+    start_search_forget: bool = False  # empty the replay buffer when the search ends (its corners' episodes dropped)
 
     def __post_init__(self) -> None:
         for name in ("batch_size", "buffer_size", "log_every", "n_step", "n_critics", "target_min_over", "actor_every"):
@@ -100,6 +101,8 @@ class SACConfig:
                 raise ConfigError(f"sac.{name} must be a number in [0, 1], got {value!r}")
         if self.start_search == 1:
             raise ConfigError("sac.start_search needs at least 2 candidate blends to choose from (0: no search), got 1")
+        if not isinstance(self.start_search_forget, bool):
+            raise ConfigError(f"sac.start_search_forget must be true or false, got {self.start_search_forget!r}")
         if self.actor_q not in ("min", "mean"):
             raise ConfigError(f"sac.actor_q must be 'min' or 'mean', got {self.actor_q!r}")
         if not self.q_hidden or any(int(h) < 1 for h in self.q_hidden):
@@ -145,6 +148,10 @@ class ReplayBuffer:
 
     def __len__(self) -> int:
         return self.size
+
+    def clear(self) -> None:
+        """Forget every transition (the arrays stay allocated; priorities start again from 1)."""
+        self.position, self.size, self.max_priority = 0, 0, 1.0
 
     def add(self, obs: np.ndarray, samples: np.ndarray, rewards: np.ndarray, next_obs: np.ndarray,
             terminated: np.ndarray, discount: np.ndarray) -> None:  # fmt: skip
@@ -475,7 +482,9 @@ class SACLearner:
         weight_margin: the composed env's weight span beyond [0, 1] (where a start search puts the actor's means).
 
     With ``start_search`` n > 0 the first episodes play constant blends instead (:class:`BlendSearch`; the actor and
-    the temperature held, the critics learning from them); the actor then starts at the blend that won.
+    the temperature held, the critics learning from them); the actor then starts at the blend that won. With
+    ``start_search_forget`` the buffer is emptied then, and gradient steps wait until it holds ``learning_starts``
+    new transitions again.
     """
 
     update_while_stepping = True
@@ -512,6 +521,7 @@ class SACLearner:
         self.accumulator = NStepAccumulator(cfg.n_step, gamma)
         self.decisions, self.gradient_steps = 0, 0
         self._credit = 0.0  # gradient steps owed to the decisions observed
+        self._refill = 0  # transitions the buffer must hold before gradient steps are owed again (after a forget)
         self._since_row = 0  # decisions since the last train.csv row
         self._sums: torch.Tensor | None = None  # sums of the _SUMMED statistics over the row's gradient steps
         self._steps_in_row = 0
@@ -547,7 +557,7 @@ class SACLearner:
         n = len(step.rewards)
         self.decisions += n
         self._since_row += n
-        if self.decisions >= self.cfg.learning_starts:
+        if self.decisions >= self.cfg.learning_starts and len(self.buffer) >= self._refill:
             self._credit += n * self.cfg.updates_per_decision
 
     def _start_at_winner(self) -> None:
@@ -556,6 +566,9 @@ class SACLearner:
         assert search is not None and search.winner is not None
         log.info("sac.start_search: %s won (weights in the order of the skills; s: the start's 0.5); by mean return "
                  "(episodes): %s", search.label(search.winner), search.summary())  # fmt: skip
+        if self.cfg.start_search_forget:  # the critics keep what they learnt; they train on from new episodes only
+            self.buffer.clear()
+            self._credit, self._refill = 0.0, max(1, self.cfg.learning_starts)
         samples = search.candidates[search.winner]
         if np.all(samples == 0.5):
             return
@@ -642,7 +655,7 @@ class SACLearner:
             "temperature_optimizer": self.temperature_optimizer.state_dict(),
             "buffer": self.buffer.state_dict(), "n_step": self.accumulator.state_dict(),
             "counters": {"decisions": self.decisions, "gradient_steps": self.gradient_steps, "credit": self._credit,
-                         "since_row": self._since_row},
+                         "since_row": self._since_row, "refill": self._refill},
             **({"trained_policy": self.policy.state_dict()} if self.evaluated is not self.policy else {}),
             **({"start_search": self.search.state_dict()} if self.search is not None else {}),
         }  # fmt: skip
@@ -659,6 +672,7 @@ class SACLearner:
         counters = state["counters"]
         self.decisions, self.gradient_steps = int(counters["decisions"]), int(counters["gradient_steps"])
         self._credit, self._since_row = float(counters["credit"]), int(counters["since_row"])
+        self._refill = int(counters.get("refill", 0))
         self._sums, self._steps_in_row = None, 0
         if self.evaluated is not self.policy:  # else a checkpoint without it (policy_tau was 1): the evaluated one
             self.policy.load_state_dict(state.get("trained_policy", self.evaluated.state_dict()))

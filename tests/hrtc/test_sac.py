@@ -745,6 +745,34 @@ def test_the_learner_holds_the_actor_while_searching_then_starts_it_at_the_winni
         np.testing.assert_allclose(applied, weights, atol=0.06 if margin == 0 else 1e-3)
 
 
+def test_start_search_forget_empties_the_buffer_at_the_winner_and_waits_for_learning_starts_new_transitions():
+    """With sac.start_search_forget the search's transitions leave the buffer when it ends; no gradient step is taken
+    until learning_starts new ones are in, then they resume (and the counters survive a state_dict round trip)."""
+    torch.manual_seed(0)
+    cfg = SACConfig(batch_size=4, learning_starts=4, q_hidden=(8,), log_every=1000, start_search=4,
+                    start_search_forget=True)  # fmt: skip
+    learner = SACLearner(ActorCritic(2, 3, "beta", (8,)), cfg, 0.9, torch.Generator().manual_seed(0))
+    obs, done = np.zeros((2, 2), np.float32), np.ones(2, bool)
+
+    def step(learner: SACLearner) -> None:
+        samples, _ = learner.act(obs)
+        learner.observe(Step(obs, samples, samples.sum(axis=1), obs, done, np.zeros(2, bool)))
+        learner.update()
+
+    while learner.searching:
+        step(learner)
+    searched = learner.gradient_steps
+    assert searched > 0 and len(learner.buffer) == 0
+    resumed = SACLearner(ActorCritic(2, 3, "beta", (8,)), cfg, 0.9, torch.Generator().manual_seed(0))
+    resumed.load_state_dict(copy.deepcopy(learner.state_dict()))
+    assert not resumed.searching
+    for run in (learner, resumed):
+        step(run)  # 2 new transitions of the 4 needed
+        assert run.gradient_steps == searched and len(run.buffer) == 2
+        step(run)  # 4: owed again
+        assert run.gradient_steps > searched
+
+
 def test_a_run_with_a_start_search_resumes_it_and_plays_each_of_its_episodes_on_the_composed_env(tmp_path, caplog):
     """The real Trainer on the switch line: a run stopped mid-search resumes it from its checkpoint (the episodes the
     stop cut are played again), the search ends with one winner, and every candidate's episodes are the env's 25
@@ -773,6 +801,8 @@ def test_start_search_settings_are_checked():
         SACConfig(start_search=1)
     with pytest.raises(Exception, match="sac.start_search must be a non-negative integer"):
         SACConfig(start_search=-3)
+    with pytest.raises(Exception, match="sac.start_search_forget must be true or false"):
+        SACConfig(start_search_forget="yes")
     with pytest.raises(Exception, match="needs the Beta meta-policy"):
         SACLearner(ActorCritic(2, 2, "normal", (8,)), SACConfig(start_search=4), 0.9, torch.Generator())
 
