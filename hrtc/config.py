@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Mapping
 from dataclasses import dataclass, field, fields
 from pathlib import Path
@@ -16,6 +17,7 @@ from hrtc.ppo import PPOConfig
 from hrtc.sac import SACConfig
 
 ROOT_CONF = Path(__file__).resolve().parent / "conf"  # the Hydra configs shipped with the package
+log = logging.getLogger(__name__)
 
 ALGOS = ("hrtc", "ppo")
 DISTS = ("beta", "normal")
@@ -140,6 +142,9 @@ class RunConfig:
         learner = str(cfg.pop("learner", "auto"))
         if learner == "auto":
             learner = str(task.get("learner", "ppo")) if algo.get("name") == "hrtc" else "ppo"
+        search = sac_cfg.get("start_search")
+        if learner == "sac" and isinstance(search, int) and search > 1:  # (bad values: SACConfig's error)
+            _drop_start_search(sac_cfg, algo, str(dist.get("name")), cfg.get("init_from"))
         top = {f.name for f in fields(cls)} - {"task", "skills", "algo", "dist", "action_filter", "ppo", "sac",
                                                 "learner", "solve_threshold", "env_kwargs", "logger"}  # fmt: skip
         unknown = set(cfg) - top - {"run_dir", "resume"}
@@ -176,3 +181,18 @@ class RunConfig:
     def learner_settings(self) -> PPOConfig | SACConfig:
         """The settings block of the run's learner."""
         return self.sac if self.learner == "sac" else self.ppo
+
+
+def _drop_start_search(sac_cfg: dict[str, Any], algo: Mapping[str, Any], dist: str, init_from: Any) -> None:
+    """A task's default start search (``sac.start_search``, lunarlander's) steps aside, logged, where the run gives the
+    actor's start itself (``algo.init_weights``, ``init_from``) or the meta-policy has no Beta weights to start."""
+    if algo.get("init_weights"):
+        why = "algo.init_weights gives the actor's start"
+    elif init_from:
+        why = "init_from gives the actor's start"
+    elif algo.get("name") != "hrtc" or dist != "beta":
+        why = f"it needs algo=hrtc dist=beta, got algo={algo.get('name')} dist={dist}"
+    else:
+        return
+    log.warning("sac.start_search=%s skipped: %s", sac_cfg["start_search"], why)
+    sac_cfg["start_search"], sac_cfg["start_search_forget"] = 0, False
