@@ -120,7 +120,8 @@ def test_discrete_variant_is_refused() -> None:
 
 def test_train_py_runs_hrtc_on_lunarlander_with_the_task_defaults(tmp_path) -> None:
     """The user's command, 2,000 env steps long: the task's settings (its learner, SAC with critics 512 x 512 and two
-    gradient steps per decision; a decision every 5 env steps) and its six skills reach the trainer."""
+    gradient steps per decision, the 10 s horizon, the weight span and the start search; a decision every 5 env
+    steps) and its six skills reach the trainer."""
     import subprocess
     import sys
     from pathlib import Path
@@ -140,8 +141,13 @@ def test_train_py_runs_hrtc_on_lunarlander_with_the_task_defaults(tmp_path) -> N
     rows = pd.read_csv(run_dir / "train.csv")  # SAC's: one row per 250 decisions (1,250 env steps with 2 envs)
     assert len(rows) == 1 and "losses/q_loss" in rows.columns  # (no update yet: learning starts at 500 decisions)
     sac = yaml.safe_load((run_dir / "config.yaml").read_text())["sac"]
-    assert sac["q_hidden"] == [512, 512] and sac["updates_per_decision"] == 2
-    meta = load_checkpoint(run_dir / "checkpoints" / "last.pt")["meta"]
+    assert sac["q_hidden"] == [512, 512] and sac["updates_per_decision"] == 2 and sac["gamma"] == 0.998
+    assert sac["start_search"] == 16 and sac["start_search_forget"] is True
+    checkpoint = load_checkpoint(run_dir / "checkpoints" / "last.pt")
+    search = checkpoint["optimizer"]["start_search"]  # 2,000 env steps: the search's 30 episodes are still playing
+    assert len(search["candidates"]) == 16 and search["winner"] is None and sum(map(len, search["returns"])) >= 1
+    meta = checkpoint["meta"]
     assert meta["algo"] == "hrtc" and meta["dist"] == "beta" and meta["decision_every"] == 5
+    assert meta["weight_margin"] == 0.25
     assert meta["learner"] == "sac"
     assert meta["skills"] == ["attitude", "centring", "descent", "hover", "touchdown", "idle"]

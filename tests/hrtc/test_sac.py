@@ -807,6 +807,34 @@ def test_start_search_settings_are_checked():
         SACLearner(ActorCritic(2, 2, "normal", (8,)), SACConfig(start_search=4), 0.9, torch.Generator())
 
 
+@pytest.mark.parametrize(
+    ("overrides", "why"),
+    [
+        (["algo.init_weights={centring: 1.0, descent: 1.0, touchdown: 1.0}"], "algo.init_weights gives the actor's start"),
+        (["dist=normal"], "it needs algo=hrtc dist=beta, got algo=hrtc dist=normal"),
+        ([], None),
+        (["learner=ppo"], None),
+    ],
+)
+def test_lunarlanders_default_start_search_steps_aside_where_the_run_gives_the_start(overrides, why, caplog):
+    """lunarlander's default searches for the actor's start (sac.start_search=16, its episodes then forgotten); a run
+    that gives the start itself, or whose weights are not Beta, runs without the search and the log says why."""
+    from omegaconf import OmegaConf
+
+    from hrtc.cli import compose
+    from hrtc.config import RunConfig
+
+    with caplog.at_level("WARNING", logger="hrtc.config"):
+        cfg = RunConfig.from_mapping(OmegaConf.to_container(compose(["task=lunarlander", *overrides]), resolve=True))
+    skipped = [r.message for r in caplog.records if "sac.start_search=16 skipped" in r.message]
+    if why is None:
+        assert (cfg.sac.start_search, cfg.sac.start_search_forget) == (16, True) and not skipped
+    else:
+        assert (cfg.sac.start_search, cfg.sac.start_search_forget) == (0, False)
+        assert skipped == [f"sac.start_search=16 skipped: {why}"]
+    assert cfg.sac.gamma == 0.998 and cfg.weight_margin == 0.25 and cfg.steps == 50_000
+
+
 # --------------------------------------------------------------------------------------------------- learning
 SWITCH_TASK = "test_switch_line"
 
