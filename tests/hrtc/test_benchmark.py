@@ -268,13 +268,16 @@ def test_a_killed_benchmark_takes_its_pool_workers_with_it(tmp_path: Path) -> No
            "eval_every=100000", "eval_episodes=1", "cpus=1", "progress=false", "algos=[hrtc_beta]", "seeds=1",
            "backend=process", "references=false", f"out={tmp_path / 'out'}",
            f"runs_dir={tmp_path / 'runs'}"]  # fmt: skip
-    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=ROOT)
+    log = tmp_path / "benchmark.log"  # the worker's lines too (it inherits the file): what a failure shows
+    with log.open("w") as out:
+        proc = subprocess.Popen(cmd, stdout=out, stderr=subprocess.STDOUT, cwd=ROOT)
     workers: list = []
     try:
-        deadline = time.monotonic() + 180
+        deadline = time.monotonic() + 300
         train_csv = tmp_path / "runs" / "hrtc_beta" / "seed1" / "train.csv"
-        while time.monotonic() < deadline and not (train_csv.exists() and len(train_csv.read_text().splitlines()) > 1):
-            assert proc.poll() is None, "the benchmark ended before its run started"
+        while not (train_csv.exists() and len(train_csv.read_text().splitlines()) > 1):
+            assert proc.poll() is None, f"the benchmark ended before its run started:\n{log.read_text()[-3000:]}"
+            assert time.monotonic() < deadline, f"no train.csv row in 300 s:\n{log.read_text()[-3000:]}"
             time.sleep(0.2)
         workers = [c for c in psutil.Process(proc.pid).children() if "spawn_main" in " ".join(c.cmdline())]
         assert len(workers) == 1
@@ -286,7 +289,8 @@ def test_a_killed_benchmark_takes_its_pool_workers_with_it(tmp_path: Path) -> No
         for process in [*workers, psutil.Process(proc.pid)] if proc.poll() is None else workers:
             if process.is_running():
                 process.kill()  # a failed check leaves nothing running
-    assert list((tmp_path / "runs").rglob("last.pt"))  # SIGTERM in the worker: the trainer's checkpoint on stop
+    # SIGTERM in the worker: the trainer's checkpoint on stop
+    assert list((tmp_path / "runs").rglob("last.pt")), log.read_text()[-3000:]
 
 
 def test_machine_line_names_the_cpu_generation_and_its_bfloat16_instructions() -> None:
