@@ -55,7 +55,9 @@ def test_a_second_training_process_on_the_same_run_directory_is_refused(tmp_path
                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)  # fmt: skip
     try:
         deadline = time.time() + 120
-        while not (run_dir / "train.csv").exists():  # the first run is training
+        # The first run is training: the Trainer writes train.csv's header as it is built, launch() the config.yaml
+        # right after (under load the two can be seconds apart), so wait for both.
+        while not ((run_dir / "train.csv").exists() and (run_dir / "config.yaml").exists()):
             assert first.poll() is None and time.time() < deadline, "the first run did not start"
             time.sleep(0.2)
         hydra_files = lambda: {p: p.stat().st_mtime_ns for p in [*run_dir.glob(".hydra/*"), run_dir / "config.yaml"]}  # noqa: E731
