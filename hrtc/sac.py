@@ -61,6 +61,7 @@ class SACConfig:
     priority_correction: float = 0.5  # importance weights (N P_i)^-this, over the batch's max, in the critics' loss
     start_search: int = 0  # constant corner blends tried by successive halving before the actor moves (0: none)
     start_search_forget: bool = False  # empty the replay buffer when the search ends (its corners' episodes dropped)
+    start_search_reset: bool = False  # the critics (targets, optimiser) start afresh when the search ends
 
     def __post_init__(self) -> None:
         for name in ("batch_size", "buffer_size", "log_every", "n_step", "n_critics", "target_min_over", "actor_every"):
@@ -101,8 +102,9 @@ class SACConfig:
                 raise ConfigError(f"sac.{name} must be a number in [0, 1], got {value!r}")
         if self.start_search == 1:
             raise ConfigError("sac.start_search needs at least 2 candidate blends to choose from (0: no search), got 1")
-        if not isinstance(self.start_search_forget, bool):
-            raise ConfigError(f"sac.start_search_forget must be true or false, got {self.start_search_forget!r}")
+        for name in ("start_search_forget", "start_search_reset"):
+            if not isinstance(getattr(self, name), bool):
+                raise ConfigError(f"sac.{name} must be true or false, got {getattr(self, name)!r}")
         if self.actor_q not in ("min", "mean"):
             raise ConfigError(f"sac.actor_q must be 'min' or 'mean', got {self.actor_q!r}")
         if not self.q_hidden or any(int(h) < 1 for h in self.q_hidden):
@@ -484,7 +486,8 @@ class SACLearner:
     With ``start_search`` n > 0 the first episodes play constant blends instead (:class:`BlendSearch`; the actor and
     the temperature held, the critics learning from them); the actor then starts at the blend that won. With
     ``start_search_forget`` the buffer is emptied then, and gradient steps wait until it holds ``learning_starts``
-    new transitions again.
+    new transitions again; with ``start_search_reset`` the critics, their targets and their optimiser start afresh
+    then (drawn from ``generator``), so nothing the search's critics learnt remains but the winner.
     """
 
     update_while_stepping = True
@@ -507,7 +510,8 @@ class SACLearner:
         if cfg.q_bf16 == "auto":
             log.info("sac.q_bf16=auto: the critics' hidden layers in %s", "bfloat16" if bf16 else "float32 (no "
                      "bfloat16 matrix instructions on this CPU)")  # fmt: skip
-        self.critics = TwinQ(obs_dim, k, cfg.q_hidden, n=cfg.n_critics, layer_norm=cfg.q_layer_norm, bf16=bf16)
+        self._bf16 = bf16
+        self.critics = self._new_critics(obs_dim, k)
         self.target_critics = copy.deepcopy(self.critics).requires_grad_(False)
         self.q_optimizer = torch.optim.Adam(self.critics.parameters(), lr=cfg.learning_rate)
         self.actor_optimizer = torch.optim.Adam(policy.parameters(), lr=cfg.learning_rate)
@@ -531,6 +535,21 @@ class SACLearner:
             if not isinstance(getattr(policy, "actor_head", None), BetaHead):
                 raise ConfigError("sac.start_search needs the Beta meta-policy (algo=hrtc dist=beta)")
             self.search = BlendSearch(cfg.start_search, k, generator)
+
+    def _new_critics(self, obs_dim: int, k: int) -> TwinQ:
+        cfg = self.cfg
+        return TwinQ(obs_dim, k, cfg.q_hidden, n=cfg.n_critics, layer_norm=cfg.q_layer_norm, bf16=self._bf16)
+
+    def _reset_critics(self) -> None:
+        """Fresh critics (their initialisation drawn from the learner's generator, so a run's seed fixes it), targets
+        equal to them, and a new optimiser (Adam's moments gone)."""
+        seed = int(torch.randint(2**31 - 1, (1,), generator=self.generator))
+        with torch.random.fork_rng(devices=[]):
+            torch.manual_seed(seed)
+            fresh = self._new_critics(int(self.policy.obs_dim), int(self.policy.out_dim))
+        self.critics.load_state_dict(fresh.state_dict())
+        self.target_critics.load_state_dict(fresh.state_dict())
+        self.q_optimizer = torch.optim.Adam(self.critics.parameters(), lr=self.cfg.learning_rate)
 
     @property
     def searching(self) -> bool:
@@ -566,9 +585,11 @@ class SACLearner:
         assert search is not None and search.winner is not None
         log.info("sac.start_search: %s won (weights in the order of the skills; s: the start's 0.5); by mean return "
                  "(episodes): %s", search.label(search.winner), search.summary())  # fmt: skip
-        if self.cfg.start_search_forget:  # the critics keep what they learnt; they train on from new episodes only
+        if self.cfg.start_search_forget:  # the critics keep what they learnt (unless reset); new episodes only
             self.buffer.clear()
             self._credit, self._refill = 0.0, max(1, self.cfg.learning_starts)
+        if self.cfg.start_search_reset:
+            self._reset_critics()
         samples = search.candidates[search.winner]
         if np.all(samples == 0.5):
             return

@@ -1,6 +1,7 @@
 """The off-policy learner's pieces in isolation, and a meta-policy that learns a state-dependent switch with it."""
 
 import copy
+import dataclasses
 
 import gymnasium as gym
 import numpy as np
@@ -773,6 +774,47 @@ def test_start_search_forget_empties_the_buffer_at_the_winner_and_waits_for_lear
         assert run.gradient_steps > searched
 
 
+def test_start_search_reset_gives_fresh_critics_equal_targets_and_a_new_optimiser_when_the_search_ends():
+    """With sac.start_search_reset the critics the search trained are replaced at the winner by freshly initialised
+    ones (not those it started from, not those it trained), the targets equal them, Adam's moments are gone, and the
+    same generator seed gives the same fresh critics; without it the trained critics go on."""
+    cfg = SACConfig(batch_size=4, learning_starts=4, q_hidden=(8,), log_every=1000, start_search=4)
+    obs, done = np.zeros((2, 2), np.float32), np.ones(2, bool)
+
+    def search(reset: bool) -> tuple[SACLearner, list[torch.Tensor], list[torch.Tensor]]:
+        torch.manual_seed(0)
+        learner = SACLearner(ActorCritic(2, 3, "beta", (8,)), dataclasses.replace(cfg, start_search_reset=reset),
+                             0.9, torch.Generator().manual_seed(0))  # fmt: skip
+        initial = [p.detach().clone() for p in learner.critics.parameters()]
+        trained: list[torch.Tensor] = []
+        while True:
+            samples, _ = learner.act(obs)
+            trained = [p.detach().clone() for p in learner.critics.parameters()]
+            learner.observe(Step(obs, samples, samples.sum(axis=1), obs, done, np.zeros(2, bool)))
+            if not learner.searching:  # the observation that ended the search (and reset the critics, if asked)
+                return learner, initial, trained
+            learner.update()
+
+    kept, initial, trained = search(reset=False)
+    assert kept.gradient_steps > 0 and not all(map(torch.equal, initial, trained))
+    assert all(map(torch.equal, trained, kept.critics.parameters())) and len(kept.q_optimizer.state) > 0
+    reset, initial_r, trained_r = search(reset=True)
+    assert all(map(torch.equal, trained, trained_r))  # the same search up to its end
+    fresh = [p.detach().clone() for p in reset.critics.parameters()]
+    assert not any(torch.equal(f, t) for f, t in zip(fresh, trained, strict=True) if f.numel() > 1)
+    assert not any(torch.equal(f, i) for f, i in zip(fresh, initial_r, strict=True) if f.numel() > 1)
+    assert all(map(torch.equal, fresh, reset.target_critics.parameters()))
+    assert len(reset.q_optimizer.state) == 0
+    assert {id(p) for g in reset.q_optimizer.param_groups for p in g["params"]} == {
+        id(p) for p in reset.critics.parameters()}  # fmt: skip
+    again, _, _ = search(reset=True)
+    assert all(map(torch.equal, fresh, again.critics.parameters()))
+    samples, _ = reset.act(obs)  # and they learn: the next gradient steps move them
+    reset.observe(Step(obs, samples, samples.sum(axis=1), obs, done, np.zeros(2, bool)))
+    reset.update()
+    assert not all(map(torch.equal, fresh, reset.critics.parameters()))
+
+
 def test_a_run_with_a_start_search_resumes_it_and_plays_each_of_its_episodes_on_the_composed_env(tmp_path, caplog):
     """The real Trainer on the switch line: a run stopped mid-search resumes it from its checkpoint (the episodes the
     stop cut are played again), the search ends with one winner, and every candidate's episodes are the env's 25
@@ -803,6 +845,8 @@ def test_start_search_settings_are_checked():
         SACConfig(start_search=-3)
     with pytest.raises(Exception, match="sac.start_search_forget must be true or false"):
         SACConfig(start_search_forget="yes")
+    with pytest.raises(Exception, match="sac.start_search_reset must be true or false"):
+        SACConfig(start_search_reset=1)
     with pytest.raises(Exception, match="needs the Beta meta-policy"):
         SACLearner(ActorCritic(2, 2, "normal", (8,)), SACConfig(start_search=4), 0.9, torch.Generator())
 
@@ -830,7 +874,7 @@ def test_lunarlanders_default_start_search_steps_aside_where_the_run_gives_the_s
     if why is None:
         assert (cfg.sac.start_search, cfg.sac.start_search_forget) == (16, True) and not skipped
     else:
-        assert (cfg.sac.start_search, cfg.sac.start_search_forget) == (0, False)
+        assert (cfg.sac.start_search, cfg.sac.start_search_forget, cfg.sac.start_search_reset) == (0, False, False)
         assert skipped == [f"sac.start_search=16 skipped: {why}"]
     assert cfg.sac.gamma == 0.998 and cfg.weight_margin == 0.25 and cfg.steps == 50_000
 
