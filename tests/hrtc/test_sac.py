@@ -854,7 +854,10 @@ def test_start_search_settings_are_checked():
 @pytest.mark.parametrize(
     ("overrides", "why"),
     [
-        (["algo.init_weights={centring: 1.0, descent: 1.0, touchdown: 1.0}"], "algo.init_weights gives the actor's start"),
+        (
+            ["algo.init_weights={centring: 1.0, descent: 1.0, touchdown: 1.0}"],
+            "algo.init_weights gives the actor's start",
+        ),
         (["dist=normal"], "it needs algo=hrtc dist=beta, got algo=hrtc dist=normal"),
         ([], None),
         (["learner=ppo"], None),
