@@ -62,6 +62,7 @@ class SACConfig:
     start_search: int = 0  # constant corner blends tried by successive halving before the actor moves (0: none)
     start_search_forget: bool = False  # empty the replay buffer when the search ends (its corners' episodes dropped)
     start_search_reset: bool = False  # the critics (targets, optimiser) start afresh when the search ends
+    start_search_keep_winner: bool = False  # with start_search_forget: the winner's own transitions stay
 
     def __post_init__(self) -> None:
         for name in ("batch_size", "buffer_size", "log_every", "n_step", "n_critics", "target_min_over", "actor_every"):
@@ -102,9 +103,12 @@ class SACConfig:
                 raise ConfigError(f"sac.{name} must be a number in [0, 1], got {value!r}")
         if self.start_search == 1:
             raise ConfigError("sac.start_search needs at least 2 candidate blends to choose from (0: no search), got 1")
-        for name in ("start_search_forget", "start_search_reset"):
+        for name in ("start_search_forget", "start_search_reset", "start_search_keep_winner"):
             if not isinstance(getattr(self, name), bool):
                 raise ConfigError(f"sac.{name} must be true or false, got {getattr(self, name)!r}")
+        if self.start_search_keep_winner and not self.start_search_forget:
+            raise ConfigError("sac.start_search_keep_winner needs sac.start_search_forget=true (without it every "
+                              "search transition stays)")  # fmt: skip
         if self.actor_q not in ("min", "mean"):
             raise ConfigError(f"sac.actor_q must be 'min' or 'mean', got {self.actor_q!r}")
         if not self.q_hidden or any(int(h) < 1 for h in self.q_hidden):
@@ -154,6 +158,16 @@ class ReplayBuffer:
     def clear(self) -> None:
         """Forget every transition (the arrays stay allocated; priorities start again from 1)."""
         self.position, self.size, self.max_priority = 0, 0, 1.0
+
+    def keep(self, mask: np.ndarray) -> None:
+        """Forget the transitions where ``mask`` (over :meth:`state_dict`'s order, oldest first) is False; the rest
+        stay in their order, with their priorities."""
+        state = self.state_dict()
+        mask = np.asarray(mask, bool)
+        if mask.shape != (self.size,):
+            raise ValueError(f"keep needs one flag per held transition ({self.size}), got shape {mask.shape}")
+        kept = {k: v[torch.from_numpy(mask)] if isinstance(v, torch.Tensor) else v for k, v in state.items()}
+        self.load_state_dict(kept)
 
     def add(self, obs: np.ndarray, samples: np.ndarray, rewards: np.ndarray, next_obs: np.ndarray,
             terminated: np.ndarray, discount: np.ndarray) -> None:  # fmt: skip
@@ -487,7 +501,8 @@ class SACLearner:
     the temperature held, the critics learning from them); the actor then starts at the blend that won. With
     ``start_search_forget`` the buffer is emptied then, and gradient steps wait until it holds ``learning_starts``
     new transitions again; with ``start_search_reset`` the critics, their targets and their optimiser start afresh
-    then (drawn from ``generator``), so nothing the search's critics learnt remains but the winner.
+    then (drawn from ``generator``), so nothing the search's critics learnt remains but the winner; with
+    ``start_search_keep_winner`` (and forget) the winner's own transitions stay in the buffer.
     """
 
     update_while_stepping = True
@@ -586,7 +601,11 @@ class SACLearner:
         log.info("sac.start_search: %s won (weights in the order of the skills; s: the start's 0.5); by mean return "
                  "(episodes): %s", search.label(search.winner), search.summary())  # fmt: skip
         if self.cfg.start_search_forget:  # the critics keep what they learnt (unless reset); new episodes only
-            self.buffer.clear()
+            if self.cfg.start_search_keep_winner:  # the winner's own decisions (their samples are its blend) stay
+                held = self.buffer.state_dict()["samples"].numpy()
+                self.buffer.keep(np.all(held == search.candidates[search.winner].astype(np.float32), axis=1))
+            else:
+                self.buffer.clear()
             self._credit, self._refill = 0.0, max(1, self.cfg.learning_starts)
         if self.cfg.start_search_reset:
             self._reset_critics()

@@ -371,6 +371,23 @@ def test_replay_buffer_wraps_around_and_keeps_the_newest():
     assert sorted(other.rewards.tolist()) == [4, 5, 6]
 
 
+def test_replay_buffer_keep_drops_the_unflagged_transitions_of_a_wrapped_buffer_in_order_with_their_priorities():
+    buffer = ReplayBuffer(5, 1, 1)
+    for i in range(7):  # wrapped: holds 2..6, oldest at slot 2
+        buffer.add(np.full((1, 1), i), np.full((1, 1), i), np.array([i]), np.full((1, 1), i + 1), np.array([0.0]),
+                   np.array([0.9]))  # fmt: skip
+    buffer.priorities[:] = np.arange(5) + 10.0  # slot j: 10 + j (slot 2 holds transition 2, slot 0 transition 5)
+    buffer.keep(np.array([True, False, True, True, False]))  # oldest first: keep 2, 4, 5
+    state = buffer.state_dict()
+    assert len(buffer) == 3 and state["rewards"].tolist() == [2, 4, 5] and state["next_obs"][:, 0].tolist() == [3, 5, 6]
+    assert state["priorities"].tolist() == [12.0, 14.0, 10.0]
+    buffer.add(np.full((1, 1), 7), np.full((1, 1), 7), np.array([7]), np.full((1, 1), 8), np.array([0.0]),
+               np.array([0.9]))  # fmt: skip
+    assert buffer.state_dict()["rewards"].tolist() == [2, 4, 5, 7]  # appends after the kept ones
+    with pytest.raises(ValueError, match="one flag per held transition"):
+        buffer.keep(np.ones(3, bool))
+
+
 def test_replay_buffer_samples_whole_transitions_uniformly():
     buffer = ReplayBuffer(10, 2, 1)
     rng = np.random.default_rng(0)
@@ -815,6 +832,33 @@ def test_start_search_reset_gives_fresh_critics_equal_targets_and_a_new_optimise
     assert not all(map(torch.equal, fresh, reset.critics.parameters()))
 
 
+def test_start_search_keep_winner_keeps_exactly_the_winners_own_transitions():
+    """With sac.start_search_forget and sac.start_search_keep_winner the buffer keeps, when the search ends, the
+    transitions whose samples are the winner's blend, and only those (each candidate's episodes here have their own
+    reward, so a count per candidate tells them apart); without keep_winner it is empty."""
+    cfg = SACConfig(batch_size=4, learning_starts=4, q_hidden=(8,), log_every=1000, start_search=4,
+                    start_search_forget=True, start_search_keep_winner=True)  # fmt: skip
+    torch.manual_seed(0)
+    learner = SACLearner(ActorCritic(2, 3, "beta", (8,)), cfg, 0.9, torch.Generator().manual_seed(0))
+    obs, not_done = np.zeros((2, 2), np.float32), np.zeros(2, bool)
+    played: dict[bytes, int] = {}
+    for t in range(10_000):
+        samples, _ = learner.act(obs)
+        done = np.full(2, t % 3 == 2)  # 3-decision episodes
+        for row in samples:
+            played[row.tobytes()] = played.get(row.tobytes(), 0) + 1
+        learner.observe(Step(obs, samples, samples.sum(axis=1), obs, done, not_done))
+        if not learner.searching:
+            break
+        learner.update()
+    winner = learner.search.candidates[learner.search.winner]
+    held = learner.buffer.state_dict()["samples"].numpy()
+    assert len(held) == played[winner.tobytes()] > 0 and (held == winner).all()
+    assert len(played) == 4 and sum(played.values()) > len(held)  # the others' transitions left
+    with pytest.raises(Exception, match="start_search_keep_winner needs sac.start_search_forget=true"):
+        SACConfig(start_search=4, start_search_keep_winner=True)
+
+
 def test_a_run_with_a_start_search_resumes_it_and_plays_each_of_its_episodes_on_the_composed_env(tmp_path, caplog):
     """The real Trainer on the switch line: a run stopped mid-search resumes it from its checkpoint (the episodes the
     stop cut are played again), the search ends with one winner, and every candidate's episodes are the env's 25
@@ -877,7 +921,8 @@ def test_lunarlanders_default_start_search_steps_aside_where_the_run_gives_the_s
     if why is None:
         assert (cfg.sac.start_search, cfg.sac.start_search_forget) == (16, True) and not skipped
     else:
-        assert (cfg.sac.start_search, cfg.sac.start_search_forget, cfg.sac.start_search_reset) == (0, False, False)
+        assert not (cfg.sac.start_search or cfg.sac.start_search_forget or cfg.sac.start_search_reset
+                    or cfg.sac.start_search_keep_winner)  # fmt: skip
         assert skipped == [f"sac.start_search=16 skipped: {why}"]
     assert cfg.sac.gamma == 0.998 and cfg.weight_margin == 0.25 and cfg.steps == 50_000
 
