@@ -195,5 +195,4 @@ def _drop_start_search(sac_cfg: dict[str, Any], algo: Mapping[str, Any], dist: s
     else:
         return
     log.warning("sac.start_search=%s skipped: %s", sac_cfg["start_search"], why)
-    sac_cfg.update(start_search=0, start_search_forget=False, start_search_reset=False,
-                   start_search_keep_winner=False)
+    sac_cfg.update(start_search=0, start_search_forget=False, start_search_reset=False, start_search_keep_winner=False)
