@@ -1,4 +1,6 @@
-import csv, sys, statistics as st
+import csv
+import statistics as st
+import sys
 
 for tag in sys.argv[1:]:
     r = list(csv.DictReader(open(f"benchmarks/results/carracing/throughput/runs/{tag}/train.csv")))[

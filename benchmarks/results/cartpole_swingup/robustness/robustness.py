@@ -1,6 +1,7 @@
 """How much each controller loses on changed cart-pole physics (issue 17, part 5).
 
-    python benchmarks/results/cartpole_swingup/robustness/robustness.py --hrtc-sac RUN... --hrtc-ppo RUN... --ppo RUN... [--episodes 10]
+    python benchmarks/results/cartpole_swingup/robustness/robustness.py --hrtc-sac RUN... --hrtc-ppo RUN... \\
+        --ppo RUN... [--episodes 10]
 
 Every policy's final checkpoint (``<run>/checkpoints/last.pt``), each skill alone, the untrained blend and the hand
 switching rule act on nominal cartpole_swingup and with the pole's mass x1.5 and x3 and its length x1.25 and x1.5,

@@ -1,6 +1,7 @@
 """A long run with the recording on: resident memory and recording size sampled through it (issue 17, item 7).
 
-    python benchmarks/results/cartpole_swingup/soak/soak.py [--steps 1000000] [--every 10] [--out benchmarks/results/cartpole_swingup/soak] [train.py overrides...]
+    python benchmarks/results/cartpole_swingup/soak/soak.py [--steps 1000000] [--every 10] \\
+        [--out benchmarks/results/cartpole_swingup/soak] [train.py overrides...]
 
 Starts ``scripts/train.py task=cartpole_swingup`` in a fresh run directory, and every ``--every`` seconds samples the
 resident memory of the run's process tree (the trainer and its vector-env workers, summed; each one's too), the size
