@@ -72,6 +72,6 @@ def build_learner(name: str, settings: Any, policy: Any, num_envs: int, total_st
 
     gamma = settings.gamma**steps_per_decision
     if name == "sac":
-        return SACLearner(policy, settings, gamma, generator, weight_margin)
+        return SACLearner(policy, settings, gamma, generator, weight_margin, -(-total_steps // steps_per_decision))
     num_updates = -(-total_steps // (settings.num_steps * num_envs * steps_per_decision))
     return PPOLearner(policy, settings, num_envs, gamma, num_updates, generator)

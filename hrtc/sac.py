@@ -34,6 +34,7 @@ class SACConfig:
     """The ``sac`` block of a run's config (see ``hrtc/conf/config.yaml`` for what each key means)."""
 
     learning_rate: float = 3e-4
+    actor_lr_final: float = 1.0  # the actor's step size at the run's last decision, a fraction of learning_rate
     gamma: float = 0.99  # per env step; a decision spanning k env steps is discounted by gamma**k
     tau: float = 0.005
     batch_size: int = 256
@@ -76,6 +77,8 @@ class SACConfig:
                 raise ConfigError(f"sac.{name} must be a non-negative integer, got {value!r}")
         if not 0.0 < self.learning_rate < 1.0:
             raise ConfigError(f"sac.learning_rate must be in (0, 1), got {self.learning_rate}")
+        if isinstance(self.actor_lr_final, bool) or not 0.0 <= self.actor_lr_final <= 1.0:
+            raise ConfigError(f"sac.actor_lr_final must be a fraction in [0, 1], got {self.actor_lr_final!r}")
         if not 0.0 <= self.gamma <= 1.0:
             raise ConfigError(f"sac.gamma must be in [0, 1], got {self.gamma}")
         if not 0.0 < self.tau <= 1.0:
@@ -476,6 +479,12 @@ def sac_losses(policy: nn.Module, critics: TwinQ, target_critics: TwinQ, batch: 
             "td": td.detach().abs().mean(0)}  # fmt: skip
 
 
+def annealed_lr(base: float, final_fraction: float, progress: float) -> float:
+    """The step size a fraction ``progress`` of the way through a run: linear from ``base`` at 0 to ``base *
+    final_fraction`` at 1 (held there after it)."""
+    return base * (1.0 - (1.0 - final_fraction) * min(max(progress, 0.0), 1.0))
+
+
 # --------------------------------------------------------------------------------------------------- the learner
 _SUMMED = ("losses/q_loss", "losses/policy_loss", "losses/value_loss", "losses/entropy", "losses/q_mean")
 SAC_COLUMNS = ("losses/q_loss", "losses/policy_loss", "losses/value_loss", "losses/entropy", "losses/temperature",
@@ -496,6 +505,7 @@ class SACLearner:
         gamma: the discount per decision (``cfg.gamma ** decision_every``).
         generator: draws the replay minibatches.
         weight_margin: the composed env's weight span beyond [0, 1] (where a start search puts the actor's means).
+        total_decisions: the run's decisions summed over its envs (what ``actor_lr_final`` anneals the actor over).
 
     With ``start_search`` n > 0 the first episodes play constant blends instead (:class:`BlendSearch`; the actor and
     the temperature held, the critics learning from them); the actor then starts at the blend that won. With
@@ -509,7 +519,7 @@ class SACLearner:
     columns = SAC_COLUMNS
 
     def __init__(self, policy: nn.Module, cfg: SACConfig, gamma: float, generator: torch.Generator,
-                 weight_margin: float = 0.0) -> None:  # fmt: skip
+                 weight_margin: float = 0.0, total_decisions: int | None = None) -> None:  # fmt: skip
         import copy
 
         from hrtc.distributions import BetaHead
@@ -517,6 +527,9 @@ class SACLearner:
         # ``policy`` is the run's: what evaluations, checkpoints and exports use. With policy_tau < 1 it is a Polyak
         # average of the trained policy (self.policy, which acts and learns); with 1 it is the trained policy itself.
         self.evaluated, self.cfg, self.gamma, self.generator = policy, cfg, gamma, generator
+        if cfg.actor_lr_final < 1.0 and not (total_decisions and total_decisions > 0):
+            raise ConfigError("sac.actor_lr_final < 1 needs the run's length (total_decisions) to anneal over")
+        self.total_decisions = total_decisions
         self.policy = copy.deepcopy(policy) if cfg.policy_tau < 1.0 else policy
         self._synced = self.policy is policy  # a copy takes the run's starting weights (init_from...) at its first act
         policy = self.policy
@@ -623,6 +636,14 @@ class SACLearner:
         return True  # every observed decision is in the buffer
 
     @property
+    def actor_lr(self) -> float:
+        """The actor's step size now (``learning_rate``, or annealed toward ``actor_lr_final`` of it)."""
+        if self.cfg.actor_lr_final >= 1.0:
+            return self.cfg.learning_rate
+        progress = self.decisions / self.total_decisions  # type: ignore[operator]
+        return annealed_lr(self.cfg.learning_rate, self.cfg.actor_lr_final, progress)
+
+    @property
     def temperature(self) -> float:
         return float(self.log_temperature.detach().exp())
 
@@ -661,6 +682,8 @@ class SACLearner:
         if not actor_moves:  # V(s) still learns the soft value; the rest (a shared encoder too) stays
             for parameter in self._actor_parameters:
                 parameter.grad = None
+        if self.cfg.actor_lr_final < 1.0:
+            self.actor_optimizer.param_groups[0]["lr"] = self.actor_lr
         self.actor_optimizer.step()
         if actor_moves:
             self.temperature_optimizer.zero_grad()
@@ -683,7 +706,7 @@ class SACLearner:
         means = (self._sums / n).tolist() if n else [float("nan")] * len(_SUMMED)
         row = dict(zip(_SUMMED, means, strict=True))
         row.update({"losses/gradient_steps": float(n), "losses/temperature": self.temperature,
-                    "charts/learning_rate": self.cfg.learning_rate})  # fmt: skip
+                    "charts/learning_rate": self.actor_lr})  # fmt: skip
         self._sums, self._steps_in_row, self._since_row = None, 0, 0
         return row
 

@@ -24,6 +24,7 @@ from hrtc.sac import (
     SACConfig,
     SACLearner,
     TwinQ,
+    annealed_lr,
     sac_losses,
     soft_q_target,
     soft_update,
@@ -493,6 +494,38 @@ def test_learner_takes_updates_per_decision_gradient_steps_after_learning_starts
         learner.observe(step)
         learner.update()
     assert learner.gradient_steps == 7
+
+
+def test_annealed_lr_is_linear_from_the_base_to_its_final_fraction_and_held_after():
+    assert annealed_lr(3e-4, 0.1, 0.0) == pytest.approx(3e-4)
+    assert annealed_lr(3e-4, 0.1, 0.5) == pytest.approx(3e-4 * 0.55)
+    assert annealed_lr(3e-4, 0.1, 1.0) == pytest.approx(3e-5)
+    assert annealed_lr(3e-4, 0.1, 1.7) == pytest.approx(3e-5)
+    assert annealed_lr(3e-4, 1.0, 0.9) == pytest.approx(3e-4)  # 1: constant
+
+
+def test_the_actor_anneals_its_step_size_over_the_run_while_the_critics_keep_theirs():
+    """With ``actor_lr_final`` the actor's optimiser steps at the annealed rate of the decisions observed so far (a
+    resumed run recomputes it from its counters); without the run's length it is a config error."""
+    with pytest.raises(Exception, match="actor_lr_final"):
+        SACConfig(actor_lr_final=1.5)
+    cfg = SACConfig(batch_size=4, learning_starts=4, q_hidden=(8,), log_every=1000, actor_lr_final=0.0)
+    with pytest.raises(Exception, match="total_decisions"):
+        SACLearner(ActorCritic(2, 2, "beta", (8,)), cfg, 0.9, torch.Generator().manual_seed(0))
+    learner = SACLearner(ActorCritic(2, 2, "beta", (8,)), cfg, 0.9, torch.Generator().manual_seed(0),
+                         total_decisions=40)  # fmt: skip
+    rng = np.random.default_rng(0)
+    for _ in range(10):  # 20 decisions of 40
+        obs = rng.normal(size=(2, 2)).astype(np.float32)
+        no = np.zeros(2, bool)
+        learner.observe(Step(obs, rng.random((2, 2)).astype(np.float32), rng.normal(size=2), obs, no, no))
+        learner.update()
+    assert learner.actor_optimizer.param_groups[0]["lr"] == pytest.approx(cfg.learning_rate * 0.5)
+    assert learner.q_optimizer.param_groups[0]["lr"] == cfg.learning_rate
+    resumed = SACLearner(ActorCritic(2, 2, "beta", (8,)), cfg, 0.9, torch.Generator().manual_seed(0),
+                         total_decisions=40)  # fmt: skip
+    resumed.load_state_dict(learner.state_dict())
+    assert resumed.actor_lr == pytest.approx(cfg.learning_rate * 0.5)
 
 
 def _critics_after(cfg: SACConfig, n_steps: int) -> list[torch.Tensor]:
