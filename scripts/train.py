@@ -44,6 +44,9 @@ def main(cfg: DictConfig) -> None:
         f"done: {result['steps']} steps in {result['wall_seconds']:.0f} s; final eval {result['final_eval']:.1f}, "
         f"best {result['best_eval']:.1f}; run directory {run_dir}"
     )
+    best = run_dir / "checkpoints" / "best.pt"
+    if best.exists():  # the snapshot the evaluations picked: on fresh episodes it beat the last one (README)
+        print(f"the best evaluated policy: {best} (python scripts/eval.py checkpoint={best})")
 
 
 if __name__ == "__main__":

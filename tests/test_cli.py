@@ -26,6 +26,8 @@ def test_train_two_iterations_writes_the_run_directory(tmp_path, algo, num_steps
     result = _run([*args, "eval_episodes=1", "progress=false", f"hydra.run.dir={run_dir}"], tmp_path)
     assert result.returncode == 0, result.stderr[-2000:]
     assert "done: 1000 steps" in result.stdout
+    assert f"the best evaluated policy: {run_dir / 'checkpoints' / 'best.pt'}" in result.stdout
+    assert (run_dir / "checkpoints" / "best.pt").exists()
     train = pd.read_csv(run_dir / "train.csv")
     evals = pd.read_csv(run_dir / "eval.csv")
     assert list(train["step"]) == [500, 1000]
