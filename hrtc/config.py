@@ -138,6 +138,9 @@ class RunConfig:
                 raise ConfigError(f"unknown {block} keys {sorted(unknown)}; valid: {sorted(names)}")
         if "q_hidden" in sac_cfg:
             sac_cfg["q_hidden"] = tuple(int(h) for h in sac_cfg["q_hidden"])
+        for name in ("mirror_index", "mirror_sign"):
+            if sac_cfg.get(name) is not None:
+                sac_cfg[name] = tuple(sac_cfg[name])
         # learner=auto: HRTC learns with the task's declared learner (task.learner, PPO if none); flat RL with PPO.
         learner = str(cfg.pop("learner", "auto"))
         if learner == "auto":

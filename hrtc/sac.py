@@ -64,6 +64,9 @@ class SACConfig:
     start_search_forget: bool = False  # empty the replay buffer when the search ends (its corners' episodes dropped)
     start_search_reset: bool = False  # the critics (targets, optimiser) start afresh when the search ends
     start_search_keep_winner: bool = False  # with start_search_forget: the winner's own transitions stay
+    mirror_index: tuple[int, ...] | None = None  # a mirror image of the observation: obs'[i] = sign[i] * obs[index[i]]
+    mirror_sign: tuple[float, ...] | None = None  # (a task's symmetry under which its skills are equivariant)
+    mirror_fraction: float = 0.0  # share of each minibatch's transitions replaced by their mirror images (0: none)
 
     def __post_init__(self) -> None:
         for name in ("batch_size", "buffer_size", "log_every", "n_step", "n_critics", "target_min_over", "actor_every"):
@@ -116,6 +119,20 @@ class SACConfig:
             raise ConfigError(f"sac.actor_q must be 'min' or 'mean', got {self.actor_q!r}")
         if not self.q_hidden or any(int(h) < 1 for h in self.q_hidden):
             raise ConfigError(f"sac.q_hidden must list positive layer widths, got {list(self.q_hidden)}")
+        if isinstance(self.mirror_fraction, bool) or not 0.0 <= self.mirror_fraction <= 1.0:
+            raise ConfigError(f"sac.mirror_fraction must be a fraction in [0, 1], got {self.mirror_fraction!r}")
+        if (self.mirror_index is None) != (self.mirror_sign is None):
+            raise ConfigError("sac.mirror_index and sac.mirror_sign come together (the observation's mirror image)")
+        if self.mirror_index is not None:
+            index, sign = list(self.mirror_index), list(self.mirror_sign or ())
+            if sorted(index) != list(range(len(index))) or len(sign) != len(index) or set(sign) - {1, -1}:
+                raise ConfigError(f"sac.mirror_index must be a permutation of 0..n-1 and sac.mirror_sign n values of 1 "
+                                  f"or -1, got {index} and {sign}")  # fmt: skip
+        if self.mirror_fraction > 0 and self.mirror_index is None:
+            raise ConfigError("sac.mirror_fraction > 0 needs the task's mirror (sac.mirror_index, sac.mirror_sign)")
+        if self.mirror_fraction > 0 and self.normalize_obs:
+            raise ConfigError("sac.mirror_fraction > 0 needs sac.normalize_obs=false (a mirror image of a normalised "
+                              "observation is not the normalised mirror image)")  # fmt: skip
 
 
 # --------------------------------------------------------------------------------------------------- replay buffer
@@ -436,6 +453,20 @@ def soft_update(target: nn.Module, source: nn.Module, tau: float) -> None:
             t.mul_(1.0 - tau).add_(s, alpha=tau)
 
 
+def mirror_batch(batch: ReplayBatch, index: Sequence[int], sign: Sequence[float],
+                 mirrored: torch.Tensor) -> ReplayBatch:  # fmt: skip
+    """``batch`` with the transitions where ``mirrored`` (B,) is True replaced by their mirror images: ``obs`` and
+    ``next_obs`` become ``sign * obs[:, index]``; the weights, rewards, ends and discounts stay. Sound where the task
+    is symmetric under that map and every skill is equivariant (a mirrored state gets the mirrored action from each
+    skill, so the same weights blend the mirrored action): the mirrored transition is one the task could have given."""
+    idx = torch.as_tensor(list(index), dtype=torch.long)
+    signs = torch.as_tensor(list(sign), dtype=batch.obs.dtype)
+    keep = mirrored.unsqueeze(-1)
+    obs = torch.where(keep, batch.obs[:, idx] * signs, batch.obs)
+    next_obs = torch.where(keep, batch.next_obs[:, idx] * signs, batch.next_obs)
+    return batch._replace(obs=obs, next_obs=next_obs)
+
+
 def rsample_with_logp(distribution: object) -> tuple[torch.Tensor, torch.Tensor]:
     """A reparameterised sample ``w`` of a weight distribution and its log-probability (summed over weights)."""
     w = distribution.rsample()  # type: ignore[attr-defined]
@@ -534,6 +565,9 @@ class SACLearner:
         self._synced = self.policy is policy  # a copy takes the run's starting weights (init_from...) at its first act
         policy = self.policy
         obs_dim, k = int(policy.obs_dim), int(policy.out_dim)
+        if cfg.mirror_index is not None and len(cfg.mirror_index) != obs_dim:
+            raise ConfigError(f"sac.mirror_index maps {len(cfg.mirror_index)} observation entries; this task's "
+                              f"observation has {obs_dim}")  # fmt: skip
         bf16 = resolve_bf16(cfg.q_bf16)
         if cfg.q_bf16 == "auto":
             log.info("sac.q_bf16=auto: the critics' hidden layers in %s", "bfloat16" if bf16 else "float32 (no "
@@ -659,6 +693,9 @@ class SACLearner:
     def _gradient_step(self) -> None:
         batch = self.buffer.sample(self.cfg.batch_size, self.generator, self.cfg.priority_exponent,
                                    self.cfg.priority_correction)  # fmt: skip
+        if self.cfg.mirror_fraction > 0:  # (a mirrored transition's TD error still sets its slot's priority)
+            mirrored = torch.rand(len(batch.rewards), generator=self.generator) < self.cfg.mirror_fraction
+            batch = mirror_batch(batch, self.cfg.mirror_index or (), self.cfg.mirror_sign or (), mirrored)
         temperature = self.log_temperature.exp().detach()
         chosen = tuple(range(self.cfg.target_min_over))
         if self.cfg.n_critics > self.cfg.target_min_over:  # REDQ: a fresh random subset per gradient step (M = N: none)

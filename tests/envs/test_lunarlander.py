@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -151,3 +153,68 @@ def test_train_py_runs_hrtc_on_lunarlander_with_the_task_defaults(tmp_path) -> N
     assert meta["weight_margin"] == 0.25
     assert meta["learner"] == "sac"
     assert meta["skills"] == ["attitude", "centring", "descent", "hover", "touchdown", "idle"]
+
+
+def _declared_mirror() -> tuple[list[int], np.ndarray]:
+    """The left-right mirror that ``conf/task/lunarlander.yaml`` declares for ``sac.mirror_fraction``."""
+    from importlib import resources
+
+    import yaml
+
+    sac = yaml.safe_load((resources.files("hrtc.conf") / "task" / "lunarlander.yaml").read_text())["sac"]
+    return list(sac["mirror_index"]), np.asarray(sac["mirror_sign"], float)
+
+
+class _NoDispersion:
+    """Stands in for the env's generator after reset: gymnasium's engine impulses then land without their random
+    offset (a draw the mirrored run would need negated), so the physics alone is compared."""
+
+    def uniform(self, low: float = 0.0, high: float = 1.0, size: Any = None) -> Any:
+        return np.zeros(size) if size is not None else 0.0
+
+
+def test_the_declared_mirror_is_a_symmetry_of_the_lander_and_of_every_skill() -> None:
+    """The map mirror augmentation relies on (``sac.mirror_index``, ``sac.mirror_sign``): (1) gymnasium's lander,
+    started at a state and at its mirror image and driven by random actions and their mirror images (lateral
+    negated), stays each other's mirror image while airborne; (2) dropped tilted onto the pad, its legs touch in
+    each other's order; (3) every skill of the task's library proposes, for a
+    state's mirror image, the mirror image of its proposal, so the same weights blend the mirrored action."""
+    from hrtc.cli import task_config
+    from hrtc.composition import build_library
+
+    index, sign = _declared_mirror()
+    assert sorted(index) == list(range(8)) and len(sign) == 8
+    flip = np.array([1.0, -1.0], np.float32)  # the action's mirror image: the main engine kept, the lateral negated
+    start = np.array([0.3, 0.8, 0.4, -0.2, 0.1, 0.2, 0.0, 0.0])
+    actions = random_actions(0, 40)
+    runs = []
+    for mirrored in (False, True):
+        env = envs.make("lunarlander")
+        env.reset(seed=3)
+        state = start[index] * sign if mirrored else start
+        env.unwrapped.set_state(*state[:6])
+        env.unwrapped._np_random = _NoDispersion()
+        runs.append(np.array([env.step(a * flip if mirrored else a)[0] for a in actions]))
+    plain, mirror = runs
+    assert np.abs(plain[:, 2]).max() > 0.05 and np.abs(plain[:, 4]).max() > 0.1  # the lander moved and turned
+    np.testing.assert_allclose(plain[:, index] * sign, mirror, atol=1e-4)
+    touchdowns = []  # (2) dropped tilted onto the flat pad, engines off: one leg touches first, the other's mirror
+    for mirrored in (False, True):
+        env = envs.make("lunarlander")
+        env.reset(seed=3)
+        drop = np.array([0.05, 0.15, 0.0, 0.0, 0.3, 0.0, 0.0, 0.0])
+        env.unwrapped.set_state(*(drop[index] * sign if mirrored else drop)[:6])
+        touchdowns.append(np.array([env.step(np.array([-1.0, 0.0], np.float32))[0] for _ in range(30)]))
+    legs = touchdowns[0][:, 6:]
+    assert (legs.sum(1) == 1).any() and (legs.sum(1) == 2).any()  # one leg first, then both
+    np.testing.assert_allclose(touchdowns[0][:, index] * sign, touchdowns[1], atol=1e-3)
+    library = build_library(task_config("lunarlander")["skills"])
+    rng = np.random.default_rng(1)
+    for _ in range(200):
+        obs = rng.uniform(-1, 1, 8) * np.array([1, 1.5, 1, 1, 0.6, 1, 0, 0])
+        obs[6:] = rng.integers(0, 2, 2)
+        named = {key: np.array([v]) for key, v in zip(STATE_KEYS, obs, strict=True)}
+        named_mirror = {key: np.array([v]) for key, v in zip(STATE_KEYS, obs[index] * sign, strict=True)}
+        proposals, _ = library.propose(named, 0, 2)
+        proposals_mirror, _ = library.propose(named_mirror, 0, 2)
+        np.testing.assert_allclose(proposals_mirror, proposals * flip, atol=1e-12)

@@ -25,6 +25,7 @@ from hrtc.sac import (
     SACLearner,
     TwinQ,
     annealed_lr,
+    mirror_batch,
     sac_losses,
     soft_q_target,
     soft_update,
@@ -242,6 +243,85 @@ def test_a_learner_with_bf16_critics_takes_float32_gradient_steps():
     assert all(p.dtype == torch.float32 for p in after)
     assert all(not torch.equal(a, b) for a, b in zip(after, before, strict=True))
     assert np.isfinite(learner._row()["losses/q_loss"])
+
+
+def test_mirror_batch_replaces_exactly_the_drawn_transitions_by_their_mirror_images():
+    """obs and next_obs of the flagged rows become sign * obs[:, index]; the rest of the batch is untouched, and the
+    mirror of a mirror (lunarlander's map is an involution) is the transition itself."""
+    rng = np.random.default_rng(0)
+    batch = ReplayBatch(*(torch.as_tensor(a, dtype=torch.float32) for a in (
+        rng.normal(size=(6, 4)), rng.random((6, 3)), rng.normal(size=6), rng.normal(size=(6, 4)),
+        np.array([0, 1, 0, 0, 1, 0]), np.full(6, 0.9))))  # fmt: skip
+    index, sign = (0, 1, 3, 2), (-1.0, 1.0, 1.0, 1.0)  # negate the first entry, swap the last two
+    flags = torch.tensor([True, False, True, True, False, False])
+    out = mirror_batch(batch, index, sign, flags)
+    for name in ("obs", "next_obs"):
+        before, after = getattr(batch, name), getattr(out, name)
+        torch.testing.assert_close(after[flags][:, 0], -before[flags][:, 0])
+        torch.testing.assert_close(after[flags][:, 2:], before[flags][:, [3, 2]])
+        torch.testing.assert_close(after[flags][:, 1], before[flags][:, 1])
+        torch.testing.assert_close(after[~flags], before[~flags])
+    for name in ("samples", "rewards", "terminated", "discount"):
+        assert getattr(out, name) is getattr(batch, name)
+    twice = mirror_batch(out, index, sign, flags)
+    torch.testing.assert_close(twice.obs, batch.obs) and torch.testing.assert_close(twice.next_obs, batch.next_obs)
+
+
+def test_a_fully_mirrored_gradient_step_is_the_step_on_the_mirrored_buffer():
+    """sac.mirror_fraction reaches the gradient step: with fraction 1 on a buffer, the critics and the actor move
+    exactly as with fraction 0 on the buffer's mirror image (same start, same draws)."""
+    rng = np.random.default_rng(0)
+    obs, nxt = rng.normal(size=(64, 4)).astype(np.float32), rng.normal(size=(64, 4)).astype(np.float32)
+    rest = (rng.random((64, 3), np.float32), rng.normal(size=64).astype(np.float32))
+    index, sign = (1, 0, 2, 3), (1.0, 1.0, -1.0, 1.0)
+    learners = []
+    for fraction, (o, n) in ((1.0, (obs, nxt)), (0.0, (obs[:, index] * sign, nxt[:, index] * sign))):
+        torch.manual_seed(0)
+        cfg = SACConfig(q_hidden=(16,), batch_size=16, learning_starts=0, mirror_index=index, mirror_sign=sign,
+                        mirror_fraction=fraction)  # fmt: skip
+        learner = SACLearner(ActorCritic(4, 3, "beta", hidden=(8,)), cfg, 0.95, torch.Generator().manual_seed(0))
+        learner.buffer.add(o, rest[0], rest[1], n, np.zeros(64, np.float32), np.full(64, 0.95, np.float32))
+        torch.manual_seed(1)  # the actor's rsample draws
+        learner._gradient_step()
+        learners.append(learner)
+    mirrored, plain = learners
+    for a, b in zip([*mirrored.critics.parameters(), *mirrored.policy.parameters()],
+                    [*plain.critics.parameters(), *plain.policy.parameters()], strict=True):  # fmt: skip
+        torch.testing.assert_close(a, b)
+    start = SACLearner(ActorCritic(4, 3, "beta", hidden=(8,)), SACConfig(q_hidden=(16,)), 0.95,
+                       torch.Generator().manual_seed(0))  # fmt: skip
+    assert any(not torch.equal(a, b) for a, b in zip(plain.critics.parameters(), start.critics.parameters(),
+                                                      strict=True))  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    ("settings", "message"),
+    [
+        ({"mirror_fraction": 1.5}, r"sac.mirror_fraction must be a fraction in \[0, 1\]"),
+        ({"mirror_fraction": 0.5}, "sac.mirror_fraction > 0 needs the task's mirror"),
+        ({"mirror_index": (1, 0)}, "sac.mirror_index and sac.mirror_sign come together"),
+        ({"mirror_index": (0, 0), "mirror_sign": (1, -1)}, "sac.mirror_index must be a permutation"),
+        ({"mirror_index": (1, 0), "mirror_sign": (1, 2)}, "sac.mirror_index must be a permutation"),
+        ({"mirror_index": (1, 0), "mirror_sign": (1,)}, "sac.mirror_index must be a permutation"),
+        (
+            {"mirror_index": (1, 0), "mirror_sign": (1, -1), "mirror_fraction": 0.5, "normalize_obs": True},
+            "sac.mirror_fraction > 0 needs sac.normalize_obs=false",
+        ),
+    ],
+)
+def test_bad_mirror_settings_are_one_config_error(settings, message):
+    from hrtc.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=message):
+        SACConfig(**settings)
+
+
+def test_a_mirror_of_another_observation_size_is_refused_by_the_learner():
+    from hrtc.errors import ConfigError
+
+    cfg = SACConfig(q_hidden=(8,), mirror_index=(1, 0), mirror_sign=(1, -1), mirror_fraction=0.5)
+    with pytest.raises(ConfigError, match="sac.mirror_index maps 2 observation entries; this task's observation has 4"):
+        SACLearner(ActorCritic(4, 3, "beta", hidden=(8,)), cfg, 0.95, torch.Generator().manual_seed(0))
 
 
 @pytest.mark.parametrize(("n_critics", "min_over", "draws"), [(2, 2, False), (3, 3, False), (3, 2, True), (5, 3, True)])
