@@ -122,7 +122,8 @@ def test_discrete_variant_is_refused() -> None:
 
 def test_train_py_runs_hrtc_on_lunarlander_with_the_task_defaults(tmp_path) -> None:
     """The user's command, 2,000 env steps long: the task's settings (its learner, SAC with critics 512 x 512 and two
-    gradient steps per decision, the 10 s horizon, the weight span and the start search; a decision every 5 env
+    gradient steps per decision, the 10 s horizon, the weight span, the start search, 3-decision targets and the mirror
+    augmentation; a decision every 5 env
     steps) and its six skills reach the trainer."""
     import subprocess
     import sys
@@ -145,6 +146,7 @@ def test_train_py_runs_hrtc_on_lunarlander_with_the_task_defaults(tmp_path) -> N
     sac = yaml.safe_load((run_dir / "config.yaml").read_text())["sac"]
     assert sac["q_hidden"] == [512, 512] and sac["updates_per_decision"] == 2 and sac["gamma"] == 0.998
     assert sac["start_search"] == 16 and sac["start_search_forget"] is True
+    assert sac["n_step"] == 3 and sac["mirror_fraction"] == 0.5 and sac["mirror_index"] == [0, 1, 2, 3, 4, 5, 7, 6]
     checkpoint = load_checkpoint(run_dir / "checkpoints" / "last.pt")
     search = checkpoint["optimizer"]["start_search"]  # 2,000 env steps: the search's 30 episodes are still playing
     assert len(search["candidates"]) == 16 and search["winner"] is None and sum(map(len, search["returns"])) >= 1
