@@ -453,14 +453,14 @@ def soft_update(target: nn.Module, source: nn.Module, tau: float) -> None:
             t.mul_(1.0 - tau).add_(s, alpha=tau)
 
 
-def mirror_batch(batch: ReplayBatch, index: Sequence[int], sign: Sequence[float],
+def mirror_batch(batch: ReplayBatch, index: Sequence[int] | torch.Tensor, sign: Sequence[float] | torch.Tensor,
                  mirrored: torch.Tensor) -> ReplayBatch:  # fmt: skip
     """``batch`` with the transitions where ``mirrored`` (B,) is True replaced by their mirror images: ``obs`` and
     ``next_obs`` become ``sign * obs[:, index]``; the weights, rewards, ends and discounts stay. Sound where the task
     is symmetric under that map and every skill is equivariant (a mirrored state gets the mirrored action from each
     skill, so the same weights blend the mirrored action): the mirrored transition is one the task could have given."""
-    idx = torch.as_tensor(list(index), dtype=torch.long)
-    signs = torch.as_tensor(list(sign), dtype=batch.obs.dtype)
+    idx = torch.as_tensor(index, dtype=torch.long)
+    signs = torch.as_tensor(sign, dtype=batch.obs.dtype)
     keep = mirrored.unsqueeze(-1)
     obs = torch.where(keep, batch.obs[:, idx] * signs, batch.obs)
     next_obs = torch.where(keep, batch.next_obs[:, idx] * signs, batch.next_obs)
@@ -568,6 +568,10 @@ class SACLearner:
         if cfg.mirror_index is not None and len(cfg.mirror_index) != obs_dim:
             raise ConfigError(f"sac.mirror_index maps {len(cfg.mirror_index)} observation entries; this task's "
                               f"observation has {obs_dim}")  # fmt: skip
+        self._mirror = None  # (index, sign) as tensors, built once, when minibatches are mirrored
+        if cfg.mirror_fraction > 0:
+            self._mirror = (torch.as_tensor(cfg.mirror_index, dtype=torch.long),
+                            torch.as_tensor(cfg.mirror_sign, dtype=torch.float32))  # fmt: skip
         bf16 = resolve_bf16(cfg.q_bf16)
         if cfg.q_bf16 == "auto":
             log.info("sac.q_bf16=auto: the critics' hidden layers in %s", "bfloat16" if bf16 else "float32 (no "
@@ -693,9 +697,9 @@ class SACLearner:
     def _gradient_step(self) -> None:
         batch = self.buffer.sample(self.cfg.batch_size, self.generator, self.cfg.priority_exponent,
                                    self.cfg.priority_correction)  # fmt: skip
-        if self.cfg.mirror_fraction > 0:  # (a mirrored transition's TD error still sets its slot's priority)
+        if self._mirror is not None:  # (a mirrored transition's TD error still sets its slot's priority)
             mirrored = torch.rand(len(batch.rewards), generator=self.generator) < self.cfg.mirror_fraction
-            batch = mirror_batch(batch, self.cfg.mirror_index or (), self.cfg.mirror_sign or (), mirrored)
+            batch = mirror_batch(batch, *self._mirror, mirrored)
         temperature = self.log_temperature.exp().detach()
         chosen = tuple(range(self.cfg.target_min_over))
         if self.cfg.n_critics > self.cfg.target_min_over:  # REDQ: a fresh random subset per gradient step (M = N: none)

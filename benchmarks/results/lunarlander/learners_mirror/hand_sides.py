@@ -20,9 +20,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[4]))
 import envs  # noqa: E402
 from hrtc.benchmark.metrics import checkpoint_env  # noqa: E402
 from hrtc.checkpoint import load_policy  # noqa: E402
-from hrtc.references import FixedWeights, evaluate_rules  # noqa: E402
+from hrtc.cli import task_config  # noqa: E402
+from hrtc.references import evaluate_rules, reference_rules  # noqa: E402
 
-HAND = {"centring": 1.0, "descent": 1.0, "touchdown": 1.0}
 BINS = ((-9.0, -0.7), (-0.7, -0.4), (-0.4, 0.4), (0.4, 0.7), (0.7, 9.0))  # vx0, gymnasium's scaled units
 
 
@@ -32,8 +32,11 @@ def main() -> None:
     parser.add_argument("--episodes", type=int, default=400)
     args = parser.parse_args()
     seeds = list(range(5000, 5000 + args.episodes))
-    env = checkpoint_env(load_policy(args.checkpoint).meta)
-    hand = evaluate_rules(env, {"hand": FixedWeights(HAND)}, seeds)["hand"]
+    meta = load_policy(args.checkpoint).meta
+    env = checkpoint_env(meta)
+    rules = reference_rules(meta["skills"], task_config("lunarlander")["references"])
+    name = next(name for name in rules if name.startswith("hand blend"))  # the task's declared reference
+    hand = evaluate_rules(env, {name: rules[name]}, seeds)[name]
     raw = envs.make("lunarlander")
     vx0 = np.array([raw.reset(seed=s)[0][2] for s in seeds])
     failed = hand < 100

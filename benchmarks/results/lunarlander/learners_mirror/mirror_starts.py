@@ -19,7 +19,6 @@ import argparse
 import sys
 from importlib import resources
 from pathlib import Path
-from types import SimpleNamespace
 
 import numpy as np
 import torch
@@ -31,9 +30,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[4]))
 
 from hrtc.benchmark.metrics import checkpoint_env  # noqa: E402
 from hrtc.checkpoint import load_policy  # noqa: E402
+from hrtc.cli import task_config  # noqa: E402
 from hrtc.episodes import mode_decider  # noqa: E402
-
-HAND = ("centring", "descent", "touchdown")
+from hrtc.references import reference_rules, rule_decider  # noqa: E402
 
 
 def main() -> None:
@@ -53,11 +52,9 @@ def main() -> None:
     loaded = load_policy(args.checkpoint)
     env = checkpoint_env(loaded.meta)
     decide = mode_decider(loaded.policy, loaded.normalizer, env.action_space, loaded.meta["dist"])
-    if args.hand:  # centring + descent + touchdown at 1 (the task's reference), whatever the checkpoint learnt
-        hand = np.array([float(name in HAND) for name in loaded.meta["skills"]], np.float32)
-
-        def decide(obs: np.ndarray) -> SimpleNamespace:
-            return SimpleNamespace(action=hand)
+    if args.hand:  # the task's declared hand blend (its reference), whatever the checkpoint learnt
+        rules = reference_rules(loaded.meta["skills"], task_config("lunarlander")["references"])
+        decide = rule_decider(env, next(rule for name, rule in rules.items() if name.startswith("hand blend")))
 
     def mirror_ground(task: object) -> None:
         """Rebuild gymnasium's ground (the static ``moon`` body's edges) as its mirror image about the pad's centre."""
