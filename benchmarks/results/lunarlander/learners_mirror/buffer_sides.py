@@ -19,8 +19,9 @@ from hrtc.checkpoint import load_checkpoint
 
 
 def main(runs: list[str]) -> None:
-    print("| run | decisions x < 0 / x > 0 | vx < -0.5 / vx > 0.5 | the same while y > 0.8 | crash ends x < 0 / x > 0 "
-          "|")
+    print(
+        "| run | decisions x < 0 / x > 0 | vx < -0.5 / vx > 0.5 | the same while y > 0.8 | crash ends x < 0 / x > 0 |"
+    )
     print("|---|---|---|---|---|")
     for run in runs:
         buffer = load_checkpoint(Path(run) / "checkpoints" / "last.pt")["optimizer"]["buffer"]
