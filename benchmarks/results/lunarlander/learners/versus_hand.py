@@ -21,9 +21,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[4]))
 from hrtc.benchmark.metrics import checkpoint_env, checkpoint_returns  # noqa: E402
 from hrtc.checkpoint import load_policy  # noqa: E402
 from hrtc.episodes import eval_seeds  # noqa: E402
-from hrtc.references import FixedWeights, evaluate_rules  # noqa: E402
+from hrtc.references import evaluate_rules  # noqa: E402
 
-HAND = {"centring": 1.0, "descent": 1.0, "touchdown": 1.0}
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from hand import declared_hand_blend  # noqa: E402  (this folder's)
 
 
 def main() -> None:
@@ -33,8 +34,10 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=1, help="whose evaluation seeds (a run seed)")
     args = parser.parse_args()
     seeds = eval_seeds(args.seed, args.episodes)
-    env = checkpoint_env(load_policy(args.checkpoints[0]).meta)
-    hand = evaluate_rules(env, {"hand": FixedWeights(HAND)}, seeds)["hand"]
+    meta = load_policy(args.checkpoints[0]).meta
+    env = checkpoint_env(meta)
+    name, rule = declared_hand_blend(meta["skills"])
+    hand = evaluate_rules(env, {name: rule}, seeds)[name]
     print(f"hand blend: mean {hand.mean():.1f}, failed (< 100) {int((hand < 100).sum())} of {len(seeds)}")
     for path in args.checkpoints:
         returns = checkpoint_returns(path, seeds)

@@ -20,8 +20,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[4]))
 import envs  # noqa: E402
 from hrtc.benchmark.metrics import checkpoint_env  # noqa: E402
 from hrtc.checkpoint import load_policy  # noqa: E402
-from hrtc.cli import task_config  # noqa: E402
-from hrtc.references import evaluate_rules, reference_rules  # noqa: E402
+from hrtc.references import evaluate_rules  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "learners"))
+from hand import declared_hand_blend  # noqa: E402  (../learners)
 
 BINS = ((-9.0, -0.7), (-0.7, -0.4), (-0.4, 0.4), (0.4, 0.7), (0.7, 9.0))  # vx0, gymnasium's scaled units
 
@@ -34,9 +36,8 @@ def main() -> None:
     seeds = list(range(5000, 5000 + args.episodes))
     meta = load_policy(args.checkpoint).meta
     env = checkpoint_env(meta)
-    rules = reference_rules(meta["skills"], task_config("lunarlander")["references"])
-    name = next(name for name in rules if name.startswith("hand blend"))  # the task's declared reference
-    hand = evaluate_rules(env, {name: rules[name]}, seeds)[name]
+    name, rule = declared_hand_blend(meta["skills"])
+    hand = evaluate_rules(env, {name: rule}, seeds)[name]
     raw = envs.make("lunarlander")
     vx0 = np.array([raw.reset(seed=s)[0][2] for s in seeds])
     failed = hand < 100

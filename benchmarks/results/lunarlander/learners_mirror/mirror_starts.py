@@ -30,9 +30,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[4]))
 
 from hrtc.benchmark.metrics import checkpoint_env  # noqa: E402
 from hrtc.checkpoint import load_policy  # noqa: E402
-from hrtc.cli import task_config  # noqa: E402
 from hrtc.episodes import mode_decider  # noqa: E402
-from hrtc.references import reference_rules, rule_decider  # noqa: E402
+from hrtc.references import rule_decider  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "learners"))
+from hand import declared_hand_blend  # noqa: E402  (../learners)
 
 
 def main() -> None:
@@ -53,8 +55,7 @@ def main() -> None:
     env = checkpoint_env(loaded.meta)
     decide = mode_decider(loaded.policy, loaded.normalizer, env.action_space, loaded.meta["dist"])
     if args.hand:  # the task's declared hand blend (its reference), whatever the checkpoint learnt
-        rules = reference_rules(loaded.meta["skills"], task_config("lunarlander")["references"])
-        decide = rule_decider(env, next(rule for name, rule in rules.items() if name.startswith("hand blend")))
+        decide = rule_decider(env, declared_hand_blend(loaded.meta["skills"])[1])
 
     def mirror_ground(task: object) -> None:
         """Rebuild gymnasium's ground (the static ``moon`` body's edges) as its mirror image about the pad's centre."""
