@@ -53,6 +53,8 @@ class SACConfig:
     log_every: int = 250  # decisions between rows of train.csv
     normalize_obs: bool = False  # a replay buffer holds old samples: no drifting normaliser by default
     n_step: int = 1  # decisions summed into each critic target before bootstrapping (1: the one-step target)
+    n_step_final: int = 0  # > 0: the targets go from n_step decisions to this many over n_step_anneal decisions
+    n_step_anneal: int = 0  # decisions (summed over envs) over which the share of n_step targets falls from 1 to 0
     n_critics: int = 2  # critics Q_1..Q_N; each target takes the min of target_min_over of them, drawn at random
     target_min_over: int = 2  # M of REDQ: the target's min is over M of the N target critics (M = N: all, no draw)
     actor_q: str = "min"  # what the actor maximises: "min" over all N critics (SAC's) or their "mean" (REDQ's)
@@ -74,7 +76,7 @@ class SACConfig:
             if not isinstance(value, int) or isinstance(value, bool) or value < 1:
                 raise ConfigError(f"sac.{name} must be a positive integer, got {value!r}")
         for name in ("learning_starts", "actor_starts", "actor_every_from", "critic_grad_penalty_start",
-                     "start_search"):  # fmt: skip
+                     "start_search", "n_step_final", "n_step_anneal"):  # fmt: skip
             value = getattr(self, name)
             if not isinstance(value, int) or isinstance(value, bool) or value < 0:
                 raise ConfigError(f"sac.{name} must be a non-negative integer, got {value!r}")
@@ -115,6 +117,14 @@ class SACConfig:
         if self.start_search_keep_winner and not self.start_search_forget:
             raise ConfigError("sac.start_search_keep_winner needs sac.start_search_forget=true (without it every "
                               "search transition stays)")  # fmt: skip
+        if self.n_step_final and self.n_step_final == self.n_step:
+            raise ConfigError(f"sac.n_step_final ({self.n_step_final}) is sac.n_step: nothing to anneal (0: none)")
+        if bool(self.n_step_final) != bool(self.n_step_anneal):
+            raise ConfigError("sac.n_step_final and sac.n_step_anneal come together (the targets' final length and "
+                              f"the decisions to reach it), got {self.n_step_final} and {self.n_step_anneal}")
+        if self.n_step_final and (self.priority_exponent > 0 or self.start_search_forget):
+            raise ConfigError("sac.n_step_final draws from two buffers: it takes neither prioritised replay "
+                              "(sac.priority_exponent) nor sac.start_search_forget")
         if self.actor_q not in ("min", "mean"):
             raise ConfigError(f"sac.actor_q must be 'min' or 'mean', got {self.actor_q!r}")
         if not self.q_hidden or any(int(h) < 1 for h in self.q_hidden):
@@ -589,6 +599,12 @@ class SACLearner:
         self.target_entropy = cfg.target_entropy_per_weight * k
         self.buffer = ReplayBuffer(cfg.buffer_size, obs_dim, k)
         self.accumulator = NStepAccumulator(cfg.n_step, gamma)
+        # Annealed targets: the same decisions also go, as n_step_final-decision transitions, to a second buffer;
+        # a minibatch draws each transition from the first with the share long_share, from the second otherwise.
+        self.final_buffer, self.final_accumulator = None, None
+        if cfg.n_step_final:
+            self.final_buffer = ReplayBuffer(cfg.buffer_size, obs_dim, k)
+            self.final_accumulator = NStepAccumulator(cfg.n_step_final, gamma)
         self.decisions, self.gradient_steps = 0, 0
         self._credit = 0.0  # gradient steps owed to the decisions observed
         self._refill = 0  # transitions the buffer must hold before gradient steps are owed again (after a forget)
@@ -635,6 +651,11 @@ class SACLearner:
                                           step.truncated)  # fmt: skip
         if completed is not None:
             self.buffer.add(*completed)
+        if self.final_accumulator is not None:
+            completed = self.final_accumulator.push(step.obs, step.samples, step.rewards, step.next_obs,
+                                                    step.terminated, step.truncated)  # fmt: skip
+            if completed is not None:
+                self.final_buffer.add(*completed)  # type: ignore[union-attr]
         if self.searching:
             self.search.observe(step.rewards, step.terminated | step.truncated)  # type: ignore[union-attr]
             if not self.searching:
@@ -682,6 +703,28 @@ class SACLearner:
         return annealed_lr(self.cfg.learning_rate, self.cfg.actor_lr_final, progress)
 
     @property
+    def long_share(self) -> float:
+        """The share of a minibatch drawn as ``n_step``-decision transitions: 1, falling linearly to 0 over
+        ``n_step_anneal`` decisions when ``n_step_final`` is set (the rest are ``n_step_final``-decision ones)."""
+        if not self.cfg.n_step_final:
+            return 1.0
+        return max(0.0, 1.0 - self.decisions / self.cfg.n_step_anneal)
+
+    def _draw(self) -> ReplayBatch:
+        cfg = self.cfg
+        if self.final_buffer is None:
+            return self.buffer.sample(cfg.batch_size, self.generator, cfg.priority_exponent, cfg.priority_correction)
+        share = self.long_share
+        n_long = int((torch.rand(cfg.batch_size, generator=self.generator) < share).sum()) if share > 0 else 0
+        if n_long == 0 or len(self.buffer) == 0:
+            return self.final_buffer.sample(cfg.batch_size, self.generator)
+        if n_long == cfg.batch_size or len(self.final_buffer) == 0:
+            return self.buffer.sample(cfg.batch_size, self.generator)
+        parts = (self.buffer.sample(n_long, self.generator), self.final_buffer.sample(cfg.batch_size - n_long,
+                                                                                      self.generator))  # fmt: skip
+        return ReplayBatch(*(torch.cat([getattr(p, f) for p in parts]) for f in _FIELDS))
+
+    @property
     def temperature(self) -> float:
         return float(self.log_temperature.detach().exp())
 
@@ -695,8 +738,7 @@ class SACLearner:
         return self._row() if self._since_row >= self.cfg.log_every else {}
 
     def _gradient_step(self) -> None:
-        batch = self.buffer.sample(self.cfg.batch_size, self.generator, self.cfg.priority_exponent,
-                                   self.cfg.priority_correction)  # fmt: skip
+        batch = self._draw()
         if self._mirror is not None:  # (a mirrored transition's TD error still sets its slot's priority)
             mirrored = torch.rand(len(batch.rewards), generator=self.generator) < self.cfg.mirror_fraction
             batch = mirror_batch(batch, *self._mirror, mirrored)
@@ -762,6 +804,8 @@ class SACLearner:
                          "since_row": self._since_row, "refill": self._refill},
             **({"trained_policy": self.policy.state_dict()} if self.evaluated is not self.policy else {}),
             **({"start_search": self.search.state_dict()} if self.search is not None else {}),
+            **({"final_buffer": self.final_buffer.state_dict(), "n_step_final": self.final_accumulator.state_dict()}
+               if self.final_buffer is not None and self.final_accumulator is not None else {}),
         }  # fmt: skip
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
@@ -773,6 +817,11 @@ class SACLearner:
         if np.isnan(self.buffer.discount[: self.buffer.size]).any():  # an old buffer: one decision each
             self.buffer.discount[: self.buffer.size] = self.gamma
         self.accumulator.load_state_dict(state.get("n_step", {}))
+        if self.final_buffer is not None and self.final_accumulator is not None:
+            if "final_buffer" not in state:
+                raise ConfigError("this checkpoint's learner ran without sac.n_step_final: it cannot resume with it")
+            self.final_buffer.load_state_dict(state["final_buffer"])
+            self.final_accumulator.load_state_dict(state["n_step_final"])
         counters = state["counters"]
         self.decisions, self.gradient_steps = int(counters["decisions"]), int(counters["gradient_steps"])
         self._credit, self._since_row = float(counters["credit"]), int(counters["since_row"])

@@ -1096,3 +1096,81 @@ def test_sac_meta_policy_learns_a_state_dependent_switch(tmp_path):
     train = pd.read_csv(tmp_path / "train.csv")
     assert {"losses/q_loss", "losses/temperature", "losses/entropy"} <= set(train.columns)
     assert train["losses/gradient_steps"].sum() > 0
+
+
+# --------------------------------------------------------------------------------------------- annealed n-step targets
+def _fed(cfg: SACConfig, decisions: int, gamma: float = 0.9) -> SACLearner:
+    """A learner that observed ``decisions`` vector steps of 2 envs (no episode ends), without gradient steps."""
+    learner = SACLearner(ActorCritic(2, 2, "beta", (8,)), cfg, gamma, torch.Generator().manual_seed(0))
+    rng = np.random.default_rng(0)
+    for t in range(decisions):
+        obs = np.array([[t, 0.0], [t, 1.0]], np.float32)
+        no = np.zeros(2, bool)
+        learner.observe(Step(obs, rng.random((2, 2)).astype(np.float32), rng.normal(size=2), obs + [1, 0], no, no))
+    return learner
+
+
+def test_annealed_targets_fill_one_buffer_per_length_with_the_same_decisions():
+    """n_step 3 -> 1: the first buffer holds what an n_step=3 learner's holds, the second what an n_step=1 one's."""
+    base = dict(batch_size=8, learning_starts=10_000, q_hidden=(8,), log_every=1000)
+    annealed = _fed(SACConfig(**base, n_step=3, n_step_final=1, n_step_anneal=40), 12)
+    for n, held in ((3, annealed.buffer), (1, annealed.final_buffer)):
+        plain = _fed(SACConfig(**base, n_step=n), 12).buffer.state_dict()
+        state = held.state_dict()
+        for key in ("obs", "samples", "rewards", "next_obs", "terminated", "discount"):
+            assert torch.equal(state[key], plain[key]), (n, key)
+    assert len(annealed.buffer) == 20 and len(annealed.final_buffer) == 24  # 2 decisions of each env still pending
+
+
+def test_annealed_targets_share_falls_linearly_from_the_long_to_the_final_transitions():
+    """The minibatch's share of 3-decision transitions (discount gamma^3, none ends here) is 1 at the start, about
+    half half-way through n_step_anneal decisions and 0 after it; the rest are 1-decision ones (gamma)."""
+    cfg = SACConfig(batch_size=2000, learning_starts=10_000, q_hidden=(8,), log_every=1000, n_step=3, n_step_final=1,
+                    n_step_anneal=80)  # fmt: skip
+    learner = _fed(cfg, 20)  # 40 decisions observed: half-way
+    assert learner.long_share == pytest.approx(0.5)
+    batch = learner._draw()
+    long = torch.isclose(batch.discount, torch.tensor(0.9**3))
+    assert torch.isclose(batch.discount[~long], torch.tensor(0.9)).all()
+    assert 0.45 < long.float().mean() < 0.55
+    learner.decisions = 0  # the share at the start (the same buffers)
+    assert torch.isclose(learner._draw().discount, torch.tensor(0.9**3)).all()
+    learner.decisions = 80
+    assert learner.long_share == 0.0
+    assert torch.isclose(learner._draw().discount, torch.tensor(0.9)).all()
+    assert _fed(SACConfig(batch_size=8, q_hidden=(8,)), 1).long_share == 1.0  # not annealed: one buffer, all of it
+
+
+def test_annealed_targets_survive_a_checkpoint_and_need_one_to_resume():
+    from hrtc.errors import ConfigError
+
+    cfg = SACConfig(batch_size=8, learning_starts=10_000, q_hidden=(8,), log_every=1000, n_step=3, n_step_final=1,
+                    n_step_anneal=40)  # fmt: skip
+    learner = _fed(cfg, 7)
+    resumed = SACLearner(ActorCritic(2, 2, "beta", (8,)), cfg, 0.9, torch.Generator().manual_seed(0))
+    resumed.load_state_dict(learner.state_dict())
+    for a, b in ((learner.buffer, resumed.buffer), (learner.final_buffer, resumed.final_buffer)):
+        assert all(torch.equal(x, y) for x, y in zip(a.state_dict().values(), b.state_dict().values())
+                   if isinstance(x, torch.Tensor))  # fmt: skip
+    assert [len(q) for q in resumed.final_accumulator.pending] == [0, 0]
+    assert [len(q) for q in resumed.accumulator.pending] == [2, 2]
+    plain = _fed(SACConfig(batch_size=8, learning_starts=10_000, q_hidden=(8,), n_step=3), 7)
+    with pytest.raises(ConfigError, match="ran without sac.n_step_final"):
+        resumed.load_state_dict(plain.state_dict())
+
+
+@pytest.mark.parametrize(
+    ("settings", "message"),
+    [
+        ({"n_step": 3, "n_step_final": 1}, "sac.n_step_final and sac.n_step_anneal come together"),
+        ({"n_step_anneal": 100}, "sac.n_step_final and sac.n_step_anneal come together"),
+        ({"n_step": 3, "n_step_final": 3, "n_step_anneal": 100}, "nothing to anneal"),
+        ({"n_step": 3, "n_step_final": 1, "n_step_anneal": 100, "priority_exponent": 0.5}, "two buffers"),
+        ({"n_step_final": -1, "n_step_anneal": 100}, "sac.n_step_final must be a non-negative integer"),
+    ],
+)
+def test_bad_annealed_target_settings_are_one_config_error(settings, message):
+    from hrtc.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=message):
+        SACConfig(**settings)
