@@ -120,11 +120,12 @@ class SACConfig:
         if self.n_step_final and self.n_step_final == self.n_step:
             raise ConfigError(f"sac.n_step_final ({self.n_step_final}) is sac.n_step: nothing to anneal (0: none)")
         if bool(self.n_step_final) != bool(self.n_step_anneal):
-            raise ConfigError("sac.n_step_final and sac.n_step_anneal come together (the targets' final length and "
-                              f"the decisions to reach it), got {self.n_step_final} and {self.n_step_anneal}")
+            raise ConfigError("sac.n_step_final and sac.n_step_anneal come together (the targets' final length "
+                              f"and the decisions to reach it), got {self.n_step_final} and "
+                              f"{self.n_step_anneal}")  # fmt: skip
         if self.n_step_final and (self.priority_exponent > 0 or self.start_search_forget):
             raise ConfigError("sac.n_step_final draws from two buffers: it takes neither prioritised replay "
-                              "(sac.priority_exponent) nor sac.start_search_forget")
+                              "(sac.priority_exponent) nor sac.start_search_forget")  # fmt: skip
         if self.actor_q not in ("min", "mean"):
             raise ConfigError(f"sac.actor_q must be 'min' or 'mean', got {self.actor_q!r}")
         if not self.q_hidden or any(int(h) < 1 for h in self.q_hidden):

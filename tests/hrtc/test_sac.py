@@ -1150,8 +1150,8 @@ def test_annealed_targets_survive_a_checkpoint_and_need_one_to_resume():
     resumed = SACLearner(ActorCritic(2, 2, "beta", (8,)), cfg, 0.9, torch.Generator().manual_seed(0))
     resumed.load_state_dict(learner.state_dict())
     for a, b in ((learner.buffer, resumed.buffer), (learner.final_buffer, resumed.final_buffer)):
-        assert all(torch.equal(x, y) for x, y in zip(a.state_dict().values(), b.state_dict().values())
-                   if isinstance(x, torch.Tensor))  # fmt: skip
+        held, restored = a.state_dict(), b.state_dict()
+        assert all(torch.equal(held[k], restored[k]) for k in held if isinstance(held[k], torch.Tensor))
     assert [len(q) for q in resumed.final_accumulator.pending] == [0, 0]
     assert [len(q) for q in resumed.accumulator.pending] == [2, 2]
     plain = _fed(SACConfig(batch_size=8, learning_starts=10_000, q_hidden=(8,), n_step=3), 7)
