@@ -19,7 +19,7 @@ ROOT = Path(__file__).resolve().parents[2]
 STUDIES = {
     "cartpole_swingup_core": ("cartpole_swingup", "cartpole_swingup/core", 30),
     "cartpole_swingup_learners": ("cartpole_swingup", "cartpole_swingup/learners_margin", 50),
-    "cartpole_swingup_ensemble": ("cartpole_swingup", "cartpole_swingup/learners_ensemble", 170),
+    "cartpole_swingup_ensemble": ("cartpole_swingup", "cartpole_swingup/learners_ensemble", 180),
     "cartpole_swingup_throughput": ("cartpole_swingup", "cartpole_swingup/throughput", 9),
     "cartpole_swingup_tree_pretrain": ("cartpole_swingup", "cartpole_swingup/tree_transfer/pretrain", 4),
     "cartpole_swingup_tree": ("cartpole_swingup", "cartpole_swingup/tree_transfer", 15),
