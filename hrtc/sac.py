@@ -555,6 +555,10 @@ class SACLearner:
     new transitions again; with ``start_search_reset`` the critics, their targets and their optimiser start afresh
     then (drawn from ``generator``), so nothing the search's critics learnt remains but the winner; with
     ``start_search_keep_winner`` (and forget) the winner's own transitions stay in the buffer.
+
+    With ``n_step_final`` > 0 each decision also goes to a second buffer as an ``n_step_final``-decision transition,
+    and a minibatch takes each transition from the first buffer with the share :attr:`long_share` (1 falling to 0
+    over ``n_step_anneal`` decisions), from the second otherwise: the targets anneal from one length to the other.
     """
 
     update_while_stepping = True
